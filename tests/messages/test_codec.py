@@ -1,0 +1,71 @@
+"""The codec rejects every kind of bad payload with one error type and a reason."""
+
+import msgspec
+import pytest
+
+from messages.codec import MAX_PAYLOAD_BYTES, MessageError, Payload, decode, encode
+from messages.keys import alive_key, fleet_keys, key, parse_key
+
+
+class Ping(Payload, tag="test.ping"):
+    value: float
+    items: list[float] = msgspec.field(default_factory=list)
+
+
+class Pong(Payload, tag="test.pong"):
+    text: str
+
+
+def test_round_trip_keeps_header_and_body():
+    msg = Ping(sender=3, seq=7, stamp_s=1.5, value=2.0, items=[1.0, 2.0])
+    assert decode(encode(msg), Ping) == msg
+    assert decode(encode(msg), Ping | Pong) == msg
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        (b"\xc1garbage", "malformed"),
+        (msgspec.msgpack.encode({"type": "test.pong", "sender": 1, "text": "x"}), "malformed"),
+        (msgspec.msgpack.encode({"type": "test.ping", "sender": 1, "value": "x"}), "malformed"),
+        (
+            msgspec.msgpack.encode({"type": "test.ping", "version": 9, "sender": 1, "value": 1.0}),
+            "version",
+        ),
+        (
+            msgspec.msgpack.encode({"type": "test.ping", "sender": 1, "value": float("nan")}),
+            "nonfinite",
+        ),
+        (
+            msgspec.msgpack.encode(
+                {"type": "test.ping", "sender": 1, "value": 0.0, "items": [float("inf")]}
+            ),
+            "nonfinite",
+        ),
+        (b"\x00" * (MAX_PAYLOAD_BYTES + 1), "oversize"),
+    ],
+)
+def test_bad_payloads_raise_message_error(data, reason):
+    with pytest.raises(MessageError) as info:
+        decode(data, Ping)
+    assert info.value.reason == reason
+
+
+def test_unknown_sender_and_nan_on_encode():
+    data = encode(Ping(sender=9, value=1.0))
+    with pytest.raises(MessageError, match="unknown_sender"):
+        decode(data, Ping, known_senders={1, 2})
+    with pytest.raises(MessageError, match="nonfinite"):
+        encode(Ping(sender=1, value=float("nan")))
+
+
+def test_keys():
+    assert key("alpha", 3, "state") == "bf/alpha/3/state"
+    assert alive_key("alpha", 3) == "bf/alpha/3/alive"
+    assert fleet_keys("alpha") == "bf/alpha/**"
+    assert parse_key("bf/alpha/3/consensus/lambda") == ("alpha", 3, "consensus/lambda")
+    for bad in ["bf/alpha/x/state", "zz/alpha/1/state", "bf/al pha/1/s"]:
+        with pytest.raises(ValueError):
+            parse_key(bad)
+    with pytest.raises(ValueError):
+        key("a/b", 1, "state")
