@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+from messages.formation import Formation
 from onboard.geometry import FloatArray, IntArray, bearings_world, camera_axis_ned
 
 
@@ -40,29 +41,33 @@ def edge_index(edges: ArrayLike) -> dict[tuple[int, int], int]:
     return {(int(a), int(b)): k for k, (a, b) in enumerate(np.asarray(edges).reshape(-1, 2))}
 
 
-def angle_set(edges: ArrayLike) -> IntArray:
-    """Angle set of paper 003: ``{(i, j, k): (i, j) in E, (i, k) in E, j < k}`` as ``(A, 3)``.
+def angle_set_with_rows(edges: ArrayLike) -> tuple[IntArray, IntArray, IntArray]:
+    """Angle set of paper 003 with, per angle, the rows of ``(i, j)`` and ``(i, k)`` in ``edges``.
 
-    Each angle is measured at ``i`` between its bearings to ``j`` and ``k``.
+    The angle set is ``{(i, j, k): (i, j) in E, (i, k) in E, j < k}``: each angle is measured at
+    ``i`` between its bearings to ``j`` and ``k``. ``edges`` must be normalized
+    (:func:`normalize_edges`: sorted, unique). No Python loop: an edge at position ``q`` among
+    the ``m`` out-edges of its tail pairs with the ``m - 1 - q`` out-edges after it.
     """
-    e = normalize_edges(edges)
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     if len(e) == 0:
-        return np.zeros((0, 3), dtype=np.int64)
-    out = []
-    for i in np.unique(e[:, 0]):
-        nbrs = e[e[:, 0] == i, 1]
-        jj, kk = np.triu_indices(len(nbrs), k=1)
-        out.append(np.stack([np.full(len(jj), i), nbrs[jj], nbrs[kk]], axis=1))
-    return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 3), dtype=np.int64)
+        empty = np.zeros(0, dtype=np.int64)
+        return np.zeros((0, 3), dtype=np.int64), empty, empty
+    tails = e[:, 0]
+    counts = np.bincount(tails)
+    first = np.cumsum(counts) - counts
+    position = np.arange(len(e)) - first[tails]
+    partners = counts[tails] - 1 - position
+    rows_ij = np.repeat(np.arange(len(e)), partners)
+    block_start = np.repeat(np.cumsum(partners) - partners, partners)
+    rows_ik = rows_ij + 1 + (np.arange(len(rows_ij)) - block_start)
+    angles = np.stack([tails[rows_ij], e[rows_ij, 1], e[rows_ik, 1]], axis=1)
+    return angles.astype(np.int64), rows_ij, rows_ik
 
 
-def angle_edge_rows(edges: ArrayLike, angles: ArrayLike) -> tuple[IntArray, IntArray]:
-    """Rows of edges ``(i, j)`` and ``(i, k)`` in ``edges`` for every angle ``(i, j, k)``."""
-    idx = edge_index(edges)
-    a = np.asarray(angles, dtype=np.int64).reshape(-1, 3)
-    rows_ij = np.array([idx[(int(i), int(j))] for i, j, _ in a], dtype=np.int64)
-    rows_ik = np.array([idx[(int(i), int(k))] for i, _, k in a], dtype=np.int64)
-    return rows_ij, rows_ik
+def angle_set(edges: ArrayLike) -> IntArray:
+    """Angle set ``(A, 3)`` of a directed graph (see :func:`angle_set_with_rows`)."""
+    return angle_set_with_rows(normalize_edges(edges))[0]
 
 
 def out_degree(edges: ArrayLike, n: int) -> IntArray:
@@ -102,3 +107,15 @@ def sensing_graph(
     cos_half = np.cos(np.deg2rad(np.minimum(fov[i], 360.0)) / 2.0)
     in_cone = (np.sum(axis[i] * b, axis=1) >= cos_half) | (fov[i] >= 360.0)
     return candidates[in_cone & (d <= rng[i])]
+
+
+def formation_edges(formation: Formation) -> IntArray:
+    """Sensing edges of a formation file: its ``[[edge]]`` list, else its cameras' field of view
+    and range, else the complete graph (the rule documented in :mod:`messages.formation`)."""
+    if formation.edge_source == "file" and formation.edges_file is not None:
+        return normalize_edges(formation.edges_file)
+    if formation.edge_source == "camera":
+        return sensing_graph(
+            formation.p_ned, formation.yaw_rad, formation.fov_deg, formation.range_m
+        )
+    return complete_graph(formation.n)
