@@ -1,0 +1,36 @@
+"""The ``bearingflock`` command line: one entry point, one subcommand per job.
+
+Each subcommand lives next to the code it drives (``groundstation/check_cli.py``,
+``sim/cli.py``, ...); this module only assembles them. Subcommand modules import their heavy
+dependencies (Zenoh, OpenCV, casadi, matplotlib) inside the command function so that
+``bearingflock --help`` stays instant.
+"""
+
+from __future__ import annotations
+
+import typer
+
+from groundstation.check_cli import check
+
+app = typer.Typer(
+    name="bearingflock",
+    help="Bearing-only localization and formation control for multicopter teams.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+app.command("check")(check)
+
+
+@app.callback()
+def _root() -> None:
+    """Bearing-only localization and formation control for multicopter teams."""
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()
