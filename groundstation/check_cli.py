@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import msgspec
 import typer
@@ -12,8 +12,10 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from groundstation.check import CheckReport, analyze
 from messages.formation import FormationError, load_formation
+
+if TYPE_CHECKING:
+    from groundstation.check import CheckReport
 
 EXIT_RIGID, EXIT_NOT_RIGID, EXIT_INVALID = 0, 1, 2
 
@@ -30,6 +32,8 @@ def check(
     Exit status 0 when the formation is infinitesimally bearing rigid in R^3 x S^1, 1 when it is
     not, 2 when the file is invalid.
     """
+    from groundstation.check import analyze  # scipy: imported only when the command runs
+
     try:
         report = analyze(load_formation(formation))
     except FormationError as exc:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import typer
 
 from groundstation.check_cli import check
+from groundstation.vision_cli import vision_app
 
 app = typer.Typer(
     name="bearingflock",
@@ -20,6 +21,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.command("check")(check)
+app.add_typer(vision_app, name="vision")
 
 
 @app.callback()
