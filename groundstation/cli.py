@@ -12,6 +12,7 @@ import typer
 
 from groundstation.check_cli import check
 from groundstation.vision_cli import vision_app
+from sim.cli import sim
 
 app = typer.Typer(
     name="bearingflock",
@@ -21,6 +22,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.command("check")(check)
+app.command("sim")(sim)
 app.add_typer(vision_app, name="vision")
 
 

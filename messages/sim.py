@@ -1,0 +1,72 @@
+"""Payloads the simulator publishes (and the one it listens to in lockstep).
+
+* :class:`CameraBearings` — what vehicle ``sender``'s virtual camera sees: unit bearings in its
+  body frame (FRD, camera axis = body x) to the vehicles inside its field of view and range.
+  Agents use it exactly like a real camera pipeline's output.
+* :class:`Truth` — the simulator's ground truth for one vehicle. For the recorder and the
+  evaluation only; estimators must never subscribe to it (design.md, "No truth leaks").
+* :class:`SimClock` — the simulation time, published by the simulator (``use_sim_time``).
+* :class:`SimStep` — in lockstep mode, "advance simulation time up to ``until_s``".
+
+Keys: ``bf/<fleet>/<id>/camera/bearings``, ``bf/<fleet>/<id>/truth`` (messages.keys), and
+:func:`clock_key` / :func:`step_key` for the fleet-wide clock topics.
+"""
+
+from __future__ import annotations
+
+from messages.codec import Payload
+from messages.keys import PREFIX, key
+
+CAMERA_TOPIC = "camera/bearings"
+TRUTH_TOPIC = "truth"
+
+
+class CameraBearings(Payload, tag="camera_bearings"):
+    """Body-frame unit bearings from ``sender`` to each vehicle in ``targets`` (same order)."""
+
+    targets: list[int]
+    beta_body: list[tuple[float, float, float]]
+
+
+class Truth(Payload, tag="truth"):
+    """Ground truth of vehicle ``sender``: NED position (m), velocity (m/s), yaw (rad), yaw rate."""
+
+    p_ned: tuple[float, float, float]
+    v_ned: tuple[float, float, float]
+    yaw_rad: float
+    yaw_rate_radps: float
+
+
+class SimClock(Payload, tag="sim_clock"):
+    """Simulation time ``t_s`` after ``step`` world steps; ``lockstep`` says who drives it."""
+
+    t_s: float
+    step: int
+    speedup: float
+    lockstep: bool
+
+
+class SimStep(Payload, tag="sim_step"):
+    """Lockstep driver to simulator: run until simulation time ``until_s``."""
+
+    until_s: float
+
+
+def camera_key(fleet: str, agent_id: int) -> str:
+    return key(fleet, agent_id, CAMERA_TOPIC)
+
+
+def truth_key(fleet: str, agent_id: int) -> str:
+    return key(fleet, agent_id, TRUTH_TOPIC)
+
+
+def clock_key(fleet: str) -> str:
+    """``bf/<fleet>/sim/clock``: where the simulator publishes :class:`SimClock`."""
+    key(fleet, 0, "clock")  # validates the fleet name
+    return f"{PREFIX}/{fleet}/sim/clock"
+
+
+def step_key(fleet: str) -> str:
+    """``bf/<fleet>/sim/step``: where a lockstep driver publishes :class:`SimStep`."""
+    key(fleet, 0, "step")
+    return f"{PREFIX}/{fleet}/sim/step"

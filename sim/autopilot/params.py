@@ -1,0 +1,130 @@
+"""A small parameter table and its wire encoding (MAVLink parameter protocol).
+
+MAVLink carries every parameter value in a float32 field. PX4 copies integer values into it
+bytewise (``MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE``); ArduPilot casts them
+(``PARAM_ENCODE_C_CAST``). :class:`ParamTable` stores typed values and converts at the edge.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+PARAM_TYPE_INT32 = 6
+PARAM_TYPE_REAL32 = 9
+_INT_TYPES = frozenset({1, 2, 3, 4, 5, 6})
+_INT_RANGE = {1: (0, 255), 2: (-128, 127), 3: (0, 65535), 4: (-32768, 32767)}
+_INT_RANGE.update({5: (0, 2**32 - 1), 6: (-(2**31), 2**31 - 1)})
+
+
+@dataclass
+class Param:
+    name: str
+    value: float | int
+    param_type: int = PARAM_TYPE_REAL32
+
+
+class ParamTable:
+    """Ordered, typed parameters; ``bytewise`` selects the PX4 encoding of integers."""
+
+    def __init__(self, params: list[Param], bytewise: bool) -> None:
+        for p in params:
+            if len(p.name) > 16:
+                raise ValueError(f"parameter name {p.name!r} is longer than 16 characters")
+        self._params = list(params)
+        self._index = {p.name: k for k, p in enumerate(self._params)}
+        self.bytewise = bytewise
+
+    def __len__(self) -> int:
+        return len(self._params)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def get(self, name: str) -> float | int:
+        return self._params[self._index[name]].value
+
+    def by_index(self, index: int) -> Param | None:
+        return self._params[index] if 0 <= index < len(self._params) else None
+
+    def by_name(self, name: str) -> tuple[int, Param] | None:
+        k = self._index.get(name)
+        return None if k is None else (k, self._params[k])
+
+    def items(self) -> list[tuple[int, Param]]:
+        return list(enumerate(self._params))
+
+    def wire_value(self, p: Param) -> float:
+        """The float32 that carries ``p`` on the wire."""
+        if p.param_type in _INT_TYPES and self.bytewise:
+            return struct.unpack("<f", struct.pack("<I", int(p.value) & 0xFFFFFFFF))[0]
+        return float(p.value)
+
+    def set_from_wire(self, name: str, wire_value: float, wire_type: int) -> Param | None:
+        """Apply a PARAM_SET; returns the updated parameter, or ``None`` if unknown or invalid
+        (wrong type, non-finite, out of range): the table is then unchanged."""
+        found = self.by_name(name)
+        if found is None:
+            return None
+        _, p = found
+        if p.param_type in _INT_TYPES:
+            if wire_type not in _INT_TYPES:
+                return None
+            if self.bytewise:
+                bits = struct.unpack("<I", struct.pack("<f", wire_value))[0]
+                signed = p.param_type in (2, 4, 6) and bits >= 2**31
+                raw = bits - 2**32 if signed else bits
+            else:
+                if not math.isfinite(wire_value) or wire_value != int(wire_value):
+                    return None
+                raw = int(wire_value)
+            lo, hi = _INT_RANGE[p.param_type]
+            if not lo <= raw <= hi:
+                return None
+            p.value = raw
+        else:
+            if wire_type != PARAM_TYPE_REAL32 or not math.isfinite(wire_value):
+                return None
+            p.value = float(wire_value)
+        return p
+
+
+def px4_params(sys_id: int) -> ParamTable:
+    """The PX4 flavour's parameters (names and defaults as in PX4)."""
+    return ParamTable(
+        [
+            Param("MAV_SYS_ID", sys_id, PARAM_TYPE_INT32),
+            Param("MAV_TYPE", 2, PARAM_TYPE_INT32),
+            Param("SYS_AUTOSTART", 4001, PARAM_TYPE_INT32),
+            Param("MIS_TAKEOFF_ALT", 2.5),
+            Param("MPC_XY_CRUISE", 5.0),
+            Param("MPC_TKO_SPEED", 1.5),
+            Param("MPC_LAND_SPEED", 0.7),
+            Param("RTL_RETURN_ALT", 30.0),
+            Param("COM_OF_LOSS_T", 1.0),
+            Param("COM_OBL_RC_ACT", 0, PARAM_TYPE_INT32),
+            Param("COM_DISARM_LAND", 2.0),
+            Param("COM_DISARM_PRFLT", 10.0),
+        ],
+        bytewise=True,
+    )
+
+
+def ardupilot_params(sys_id: int) -> ParamTable:
+    """The ArduCopter flavour's parameters (names, units and defaults as in ArduCopter)."""
+    return ParamTable(
+        [
+            Param("SYSID_THISMAV", sys_id, PARAM_TYPE_INT32),
+            Param("FRAME_CLASS", 1, PARAM_TYPE_INT32),
+            Param("GUID_TIMEOUT", 3.0),
+            Param("WPNAV_SPEED", 500.0),
+            Param("WPNAV_SPEED_UP", 250.0),
+            Param("LAND_SPEED", 50.0),
+            Param("RTL_ALT", 1500.0),
+            Param("PILOT_TKOFF_ALT", 0.0),
+            Param("DISARM_DELAY", 10, PARAM_TYPE_INT32),
+            Param("ARMING_CHECK", 1, PARAM_TYPE_INT32),
+        ],
+        bytewise=False,
+    )

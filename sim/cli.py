@@ -1,0 +1,193 @@
+"""``bearingflock sim``: run N simulated autopilots that real MAVLink clients can fly.
+
+Prints where each vehicle listens, then a live one-line status; Ctrl-C (or SIGTERM) stops it
+cleanly. Zenoh is imported only when ``--zenoh`` is given. Also runnable as
+``python -m sim.cli``.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+
+def sim(
+    vehicles: Annotated[int, typer.Option("--vehicles", "-n", help="Number of vehicles.")] = 3,
+    flavour: Annotated[str, typer.Option(help="Autopilot flavour: px4 or ardupilot.")] = "px4",
+    layout: Annotated[
+        str, typer.Option(help="grid, random, or a formation file (vehicles start on the ground).")
+    ] = "grid",
+    spacing: Annotated[float, typer.Option(help="Grid spacing (m).")] = 5.0,
+    seed: Annotated[int, typer.Option(help="Seed of the random layout and of all noise.")] = 0,
+    speedup: Annotated[float, typer.Option(help="Simulation time per wall second.")] = 1.0,
+    lockstep: Annotated[
+        bool, typer.Option(help="Advance only on SimStep messages (needs --zenoh).")
+    ] = False,
+    strict: Annotated[bool, typer.Option(help="Behave like an autopilot fresh from boot.")] = False,
+    warmup: Annotated[float, typer.Option(help="Strict mode: estimator warm-up (s).")] = 5.0,
+    signing_key: Annotated[
+        Path | None, typer.Option(help="MAVLink 2 signing key file (hex, raw or passphrase).")
+    ] = None,
+    zenoh: Annotated[
+        str | None,
+        typer.Option(
+            help="Zenoh endpoint to listen on (e.g. tcp/127.0.0.1:7447): camera, truth, clock."
+        ),
+    ] = None,
+    zenoh_connect: Annotated[
+        list[str] | None, typer.Option(help="Zenoh endpoints to connect to (repeatable).")
+    ] = None,
+    fleet: Annotated[str, typer.Option(help="Fleet name in Zenoh keys.")] = "alpha",
+    port_base: Annotated[
+        int, typer.Option(help="UDP: vehicle i sends to port-base + i (PX4: 14540).")
+    ] = 14540,
+    gcs_port: Annotated[
+        int, typer.Option(help="UDP: every vehicle also sends here (0: off).")
+    ] = 14550,
+    bind_base: Annotated[
+        int | None, typer.Option(help="UDP: vehicle i binds port bind-base + i [port-base + 40].")
+    ] = None,
+    tcp_base: Annotated[
+        int, typer.Option(help="TCP: vehicle i listens on tcp-base + 10 i.")
+    ] = 5760,
+    transport: Annotated[
+        str | None, typer.Option(help="udp or tcp [udp for px4, tcp for ardupilot].")
+    ] = None,
+    camera_fov: Annotated[float, typer.Option(help="Camera field of view (deg, cone).")] = 90.0,
+    camera_range: Annotated[float, typer.Option(help="Camera range (m).")] = 25.0,
+    camera_rate: Annotated[float, typer.Option(help="Camera rate (Hz).")] = 30.0,
+    camera_noise: Annotated[float, typer.Option(help="Bearing noise std (rad).")] = 0.0,
+    camera_dropout: Annotated[float, typer.Option(help="Probability of a missed detection.")] = 0.0,
+    quiet: Annotated[bool, typer.Option(help="No live status line.")] = False,
+) -> None:
+    """Run a multi-vehicle kinematic MAVLink simulator (PX4 or ArduPilot flavour)."""
+    # heavy imports here, so that ``bearingflock --help`` stays instant
+    from sim.autopilot.signing import load_key
+    from sim.camera import CameraConfig, CameraPublisher
+    from sim.clock import ClockPublisher
+    from sim.server import SimConfig, SimServer
+    from sim.world import SensorNoise, formation_layout, grid_layout, random_layout
+
+    if lockstep and zenoh is None and not zenoh_connect:
+        raise typer.BadParameter("--lockstep needs --zenoh (steps arrive as SimStep messages)")
+    try:
+        ids: list[int] | None = None
+        if layout == "grid":
+            p, yaw = grid_layout(vehicles, spacing)
+        elif layout == "random":
+            p, yaw = random_layout(vehicles, (spacing * vehicles, spacing * vehicles), seed=seed)
+        else:
+            p, yaw, ids = formation_layout(layout)
+            p[:, 2] = 0.0
+        key = load_key(signing_key) if signing_key is not None else None
+        config = SimConfig(
+            p,
+            yaw,
+            flavour=flavour,
+            transport=transport,
+            client_base=port_base,
+            gcs_port=gcs_port or None,
+            bind_base=bind_base,
+            tcp_base=tcp_base,
+            speedup=speedup,
+            lockstep=lockstep,
+            strict=strict,
+            warmup_s=warmup,
+            signing_key=key,
+            noise=SensorNoise(seed=seed),
+        )
+        camera = CameraConfig(
+            camera_fov, camera_range, camera_noise, camera_dropout, camera_rate, seed
+        )
+        server = SimServer(config)
+    except (ValueError, OSError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+    session = None
+    subscribers: list[Any] = []  # keep Zenoh subscribers alive
+    if zenoh is not None or zenoh_connect:
+        session = _open_zenoh(zenoh, zenoh_connect or [])
+        put = _zenoh_put(session)
+        server.hooks.append(CameraPublisher(camera, fleet, put, ids=ids))
+        server.hooks.append(ClockPublisher(fleet, put, server.clock, config.dt_s))
+        if lockstep:
+            subscribers.append(_subscribe_steps(session, fleet, server))
+
+    for line in server.endpoints():
+        typer.echo(line)
+    if session is not None:
+        typer.echo(f"zenoh: fleet {fleet!r}, listening on {zenoh}, connecting to {zenoh_connect}")
+    typer.echo(
+        f"{server.world.n} {flavour} vehicles, speedup {speedup}, "
+        f"{'lockstep' if lockstep else 'real time'}{', strict' if strict else ''}"
+        f"{', signed' if key else ''}; Ctrl-C to stop"
+    )
+    sys.stdout.flush()
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    server.start()
+    try:
+        while not stop.wait(0.5):
+            if not quiet:
+                end = "\r" if sys.stdout.isatty() else "\n"
+                sys.stdout.write(server.status() + end)
+                sys.stdout.flush()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        server.stop()
+        if session is not None:
+            session.close()
+        counters = " ".join(f"{k}={v}" for k, v in server.counters().items() if v)
+        typer.echo(f"\nstopped at t={server.world.t_s:.2f}s; {counters}")
+
+
+def _open_zenoh(listen: str | None, connect: list[str]) -> Any:
+    """A Zenoh session in peer mode with multicast scouting off and explicit endpoints."""
+    from messages.transport import ZenohSettings, open_session
+
+    return open_session(ZenohSettings(listen=[listen] if listen else [], connect=connect))
+
+
+def _zenoh_put(session: Any) -> Any:
+    publishers: dict[str, Any] = {}
+
+    def put(key: str, data: bytes) -> None:
+        pub = publishers.get(key)
+        if pub is None:
+            pub = publishers[key] = session.declare_publisher(key)
+        pub.put(data)
+
+    return put
+
+
+def _subscribe_steps(session: Any, fleet: str, server: Any) -> Any:
+    """Advance a lockstep server on every valid SimStep; malformed ones are counted."""
+    from messages.codec import MessageError, decode
+    from messages.sim import SimStep, step_key
+
+    def on_sample(sample: Any) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), SimStep)
+        except MessageError:
+            server.autopilots[0].counters.malformed += 1
+            return
+        server.advance_to(msg.until_s, wait=False)
+
+    return session.declare_subscriber(step_key(fleet), on_sample)
+
+
+def main() -> None:
+    typer.run(sim)
+
+
+if __name__ == "__main__":
+    main()
