@@ -11,6 +11,7 @@ from __future__ import annotations
 import typer
 
 from groundstation.check_cli import check
+from groundstation.plan_cli import plan
 from groundstation.vision_cli import vision_app
 from sim.cli import sim
 
@@ -22,6 +23,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.command("check")(check)
+app.command("plan")(plan)
 app.command("sim")(sim)
 app.add_typer(vision_app, name="vision")
 

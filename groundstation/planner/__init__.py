@@ -1,0 +1,19 @@
+"""Landmark placement planner (paper 004): where to put a few well-localized vehicles so the
+others, localizing by bearings to them, are as certain as possible at their setpoints.
+
+Modules: ``problem`` (data, validation, numpy evaluation), ``symbolic`` (casadi expressions),
+``ipopt`` (Problem 3, the main method), ``greedy`` and ``isres`` (baselines), ``setpoints``
+(TOML files), ``plot`` (figure). Solvers import casadi / nlopt / matplotlib lazily.
+"""
+
+from __future__ import annotations
+
+from groundstation.planner.problem import (
+    PlacementProblem,
+    PlacementResult,
+    PlannerError,
+    ProblemError,
+    make_problem,
+)
+
+__all__ = ["PlacementProblem", "PlacementResult", "PlannerError", "ProblemError", "make_problem"]
