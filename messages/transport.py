@@ -1,0 +1,67 @@
+"""Zenoh session configuration shared by agents, the simulator and the ground station.
+
+Default (shared/design.md): peer mode on loopback, multicast scouting off, explicit endpoints.
+Every process listens on its own TCP port and connects to the ports of the processes it knows;
+gossip scouting then spreads the rest. A router (``zenohd``) or TLS is configuration: pass
+``mode="client"`` and the router's endpoint in ``connect``, or a full JSON5 file.
+
+The transport lease is shortened from Zenoh's 10 s default so that a killed process loses its
+liveliness tokens within about a second, which is what lets agents drop a dead peer within 2 s.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+ZENOH_BASE_PORT = 7447
+LEASE_MS = 1000
+KEEP_ALIVE_PER_LEASE = 4
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """How one process joins the fleet's Zenoh network."""
+
+    mode: str = "peer"
+    listen: Sequence[str] = ()
+    connect: Sequence[str] = ()
+    multicast_scouting: bool = False
+    lease_ms: int = LEASE_MS
+    config_file: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def loopback_endpoint(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"
+
+
+def zenoh_config(settings: ZenohSettings) -> Any:
+    """Build a ``zenoh.Config`` (Zenoh is imported here, not at module import)."""
+    import zenoh
+
+    if settings.config_file:
+        config = zenoh.Config.from_file(str(Path(settings.config_file)))
+    else:
+        config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(settings.mode))
+    if settings.listen:
+        config.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    if settings.connect:
+        config.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    config.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    config.insert_json5("transport/link/tx/lease", json.dumps(settings.lease_ms))
+    config.insert_json5("transport/link/tx/keep_alive", json.dumps(KEEP_ALIVE_PER_LEASE))
+    for key, value in settings.extra.items():
+        config.insert_json5(key, json.dumps(value))
+    return config
+
+
+def open_session(settings: ZenohSettings) -> Any:
+    """Open a Zenoh session with :func:`zenoh_config`."""
+    import zenoh
+
+    return zenoh.open(zenoh_config(settings))
