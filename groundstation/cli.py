@@ -14,6 +14,7 @@ from groundstation.check_cli import check
 from groundstation.plan_cli import plan
 from groundstation.vision_cli import vision_app
 from sim.cli import sim
+from sim.scenario_cli import scenario
 
 app = typer.Typer(
     name="bearingflock",
@@ -24,6 +25,7 @@ app = typer.Typer(
 )
 app.command("check")(check)
 app.command("plan")(plan)
+app.command("scenario")(scenario)
 app.command("sim")(sim)
 app.add_typer(vision_app, name="vision")
 

@@ -1,0 +1,56 @@
+"""What enters and leaves one agent core besides peer messages: its own measurements, the
+setpoint it commands, and the status it reports to the ground station.
+
+Frames: body is FRD, velocities in m/s, angles in rad, times in s (``shared/design.md``).
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+from messages.codec import Payload
+
+Vec3 = tuple[float, float, float]
+
+
+class BearingMeasurement(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One camera detection: unit bearing to ``target`` in the measuring vehicle's body frame,
+    captured at ``stamp_s``."""
+
+    target: int
+    beta_body: Vec3
+    stamp_s: float
+
+
+class OwnMeasurements(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Everything the vehicle itself measures at ``t_s``: odometry yaw (own arbitrary reference),
+    body-frame velocity, yaw rate, and the bearings of its latest camera frame."""
+
+    t_s: float
+    yaw_rad: float
+    v_body: Vec3
+    yaw_rate_rad_s: float
+    bearings: tuple[BearingMeasurement, ...] = ()
+
+
+class Setpoint(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Body-frame velocity and yaw-rate command (saturated by the core)."""
+
+    v_body: Vec3
+    yaw_rate_rad_s: float
+
+
+class AgentStatus(Payload, tag="agent.status"):
+    """Per-agent health and estimates for the ground station monitor."""
+
+    mode: str
+    p_hat_ned: Vec3
+    yaw_hat_rad: float
+    chi_hat_inv_m: dict[int, float]
+    """Inverse distance estimate per reciprocal neighbour (own or received)."""
+    e_index: float
+    """Network convergence index ``E`` (eq. 10) as estimated by consensus."""
+    lambda_bar: float
+    """Network observability index ``lambdabar`` (eq. 11) as estimated by consensus."""
+    neighbours: list[int]
+    """Neighbours heard from in the last second."""

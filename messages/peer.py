@@ -1,0 +1,85 @@
+"""Peer payloads: what one agent core sends its neighbours (paper 000, Sect. III-IV).
+
+Every payload is a flat, small :class:`messages.codec.Payload`; the header's ``stamp_s`` is the
+sender's clock when the content was valid (for :class:`BearingShare`: the camera capture time).
+Vectors are plain tuples of floats in the frame their name states. A receiver keeps the latest
+payload of each kind from each neighbour, so a lost message only makes data one period older.
+
+Per 2 ms step an agent publishes :class:`MotionShare`, :class:`LocalizationState`,
+:class:`ConsensusState`, :class:`ExcitationTable` and, if it runs reciprocal edges,
+:class:`SfmEstimate`; :class:`BearingShare` goes out at the camera rate (50 Hz).
+"""
+
+from __future__ import annotations
+
+from messages.codec import Payload
+
+Vec3 = tuple[float, float, float]
+
+
+class MotionShare(Payload, tag="peer.motion"):
+    """The sender's own measured motion, needed by a neighbour to form ``u_ij = iR_j u_j - u_i``
+    (eq. 7). ``yaw_rad`` is the sender's yaw in its *own* arbitrary reference (an odometry
+    angle; agents share no common frame): receivers only use its changes over time."""
+
+    v_body: Vec3
+    yaw_rate_rad_s: float
+    yaw_rad: float
+
+
+class BearingShare(Payload, tag="peer.bearings"):
+    """The sender's body-frame bearings captured at ``stamp_s`` (one camera frame), with its own
+    odometry yaw at that instant. Used for relative yaw on reciprocal edges (paper 002 fig. 6)
+    and for the in-edge terms of the localization filter (eq. 6) and of the formation law."""
+
+    yaw_rad: float
+    targets: list[int]
+    beta_body: list[Vec3]
+
+
+class SfmEstimate(Payload, tag="peer.sfm"):
+    """Results of the inverse-depth observers (eq. 8) the sender runs, one entry per reciprocal
+    edge ``(sender, peers[m])`` (the lower id runs the edge and shares it with the other end).
+    ``e_index`` is ``E_ij`` of eq. 10 (window average of ``|xi|^2``), ``excitation`` is
+    ``lambda_ij = u_ij^T P_ij u_ij``."""
+
+    peers: list[int]
+    chi_hat_inv_m: list[float]
+    excitation: list[float]
+    e_index: list[float]
+
+
+class ExcitationTable(Payload, tag="peer.excitation"):
+    """The freshest excitation ``lambda_k`` the sender knows for each reciprocal edge
+    ``k = (first[m], second[m])``, measured at ``stamps_s[m]``; receivers keep the newest
+    value per edge and relay it, so every agent knows every ``lambda_k`` within a few hops
+    and computes ``lambdabar`` (eq. 11) exactly."""
+
+    first: list[int]
+    second: list[int]
+    excitation: list[float]
+    stamps_s: list[float]
+
+
+class LocalizationState(Payload, tag="peer.localization"):
+    """The sender's estimate ``(phat_i, psihat_i)`` in the team's shared estimated frame (eq. 6)."""
+
+    p_hat_ned: Vec3
+    yaw_hat_rad: float
+
+
+class ConsensusState(Payload, tag="peer.consensus"):
+    """States ``(x, z)`` of the sender's PI average-consensus estimators, one entry per named
+    quantity (Freeman, Yang, Lynch 2006; ACE blocks of paper 000 fig. 1). ``x[m]`` estimates the
+    network average of the local inputs of quantity ``names[m]`` and ``z[m]`` is its integral
+    state (empty for plain neighbour averaging, e.g. of ``w_l``)."""
+
+    names: list[str]
+    x: list[list[float]]
+    z: list[list[float]]
+
+
+PeerPayload = (
+    MotionShare | BearingShare | SfmEstimate | ExcitationTable | LocalizationState | ConsensusState
+)
+"""Everything an agent core accepts in its inbox (decode with ``codec.decode(data, PeerPayload)``)."""

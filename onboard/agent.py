@@ -1,0 +1,603 @@
+"""The agent core: one vehicle's estimators and controllers of paper 000, with no I/O.
+
+``AgentCore.step(t_s, own, inbox) -> (setpoint, outbox)`` sees only the vehicle's own
+measurements (:class:`messages.agent.OwnMeasurements`) and the peer payloads it received
+(:mod:`messages.peer`); it never sees simulator truth. Inside, per step:
+
+1. ingest peer payloads (latest of each kind per neighbour; stale ones are ignored);
+2. relative yaw on every reciprocal edge from stamp-matched bearing pairs
+   (:mod:`onboard.estimation.relative_yaw`) and ``u_ij = iR_j u_j - u_i`` (eq. 7);
+3. one SfM observer (eq. 8, 10) per reciprocal edge whose lower id is this agent; the other end
+   receives the result as :class:`messages.peer.SfmEstimate`;
+4. the localization filter (eq. 6) with the SfM distances as virtual measurements;
+5. ``lambdabar`` (eq. 11) from every edge's excitation, relayed hop by hop
+   (:class:`messages.peer.ExcitationTable`; exact after a few steps), and PI average consensus
+   (fig. 1) for ``E`` (eq. 10) and, when the formation is constrained, the barycenter ``pbar``
+   and ``d lambdabar / d w_l`` (eq. 14). (A PI consensus on ``lambda_k^p`` as in fig. 1 was
+   tried first: ``lambda^p`` spans ten decades within 0.4 s when the rotation kicks in, the
+   estimator lags, and the over-estimated gradient made eq. 15 diverge.)
+6. the controller of the configured mode: ``active`` (eq. 12), ``random`` (the baseline),
+   ``formation`` (paper 002 eq. 20 + yaw alignment), ``formation-active`` (eq. 13-16) or
+   ``hold``; the setpoint is saturated.
+
+Explicit Euler with the step's ``dt`` everywhere (the paper's loop is 2 ms).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import Literal
+
+import msgspec
+import numpy as np
+
+from messages.agent import AgentStatus, OwnMeasurements, Setpoint
+from messages.codec import Payload
+from messages.peer import (
+    BearingShare,
+    ConsensusState,
+    ExcitationTable,
+    LocalizationState,
+    MotionShare,
+    SfmEstimate,
+)
+from onboard.control import active_scale as act
+from onboard.control.formation import formation_velocity, yaw_alignment_rate
+from onboard.control.random_motion import RandomMotion
+from onboard.estimation.consensus import PIConsensus
+from onboard.estimation.localization import LocalizationFilter
+from onboard.estimation.relative_yaw import RelativeYawEdge
+from onboard.estimation.sfm_observer import SfmEdge, WindowAverage, excitation
+
+Vec3 = tuple[float, float, float]
+Mode = Literal["active", "random", "formation", "formation-active", "hold"]
+
+
+class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Everything one agent core needs, with paper 000's values as defaults."""
+
+    agent_id: int
+    n_agents: int
+    edges: tuple[tuple[int, int], ...]
+    """Directed sensing graph of the fleet: ``(i, j)`` means ``i`` measures the bearing to ``j``.
+    Agents communicate along every edge in both directions."""
+    mode: Mode = "active"
+    p_hat0_ned: tuple[Vec3, ...] = ()
+    """Initial localization guess of every agent (the shared prior of paper 000 Sect. V; it also
+    initializes the SfM observers, ``chihat_ij = 1 / |phat_j - phat_i|``)."""
+    yaw_hat0_rad: tuple[float, ...] = ()
+    desired_beta_body: tuple[tuple[int, int, Vec3], ...] = ()
+    """Desired formation: body-frame bearing ``beta*_ij`` per edge ``(i, j, beta)``."""
+    desired_yaw_rad: tuple[float, ...] = ()
+    """Desired yaws (only their differences matter)."""
+    seed: int = 0
+
+    # SfM observer (eq. 8) and convergence index (eq. 10)
+    alpha: float = 10.0
+    h_other: float = 10.0
+    h_floor: float = 1e-3
+    e_window_s: float = 1.0
+    chi_min_inv_m: float = 0.02
+    """SfM estimates below this (distance above 50 m) are not used as virtual measurements."""
+    # localization (eq. 6)
+    k_loc_bearing: float = 100.0
+    k_loc_distance: float = 1.0
+    # consensus (PI estimator) and the sharing of w_l between neighbours
+    consensus_gamma: float = 50.0
+    consensus_k_p: float = 20.0
+    consensus_k_i: float = 20.0
+    k_w_l_coupling: float = 5.0
+    excitation_relay_every: int = 5
+    """Steps between relays of the whole excitation table (own edges go out every step)."""
+    # unconstrained active perception (eq. 11-12)
+    p_norm: float = -5.0
+    k_nu: float = 10.0
+    nu_star: float = 0.25
+    k_lambda: float = 15.0
+    # bearing-constrained active perception (eq. 13-16)
+    k_w: float = 1.0
+    gamma: float = 0.05
+    k_lambda0: float = 2.0
+    e_low: float = 1e-4
+    e_high: float = 1e-3
+    # formation (paper 002 eq. 20) and yaw alignment
+    k_formation: float = 0.5
+    k_yaw: float = 1.0
+    # random-motion baseline
+    random_tau_s: float = 1.0
+    # safety
+    v_max_m_s: float = 3.0
+    yaw_rate_max_rad_s: float = 1.5
+    peer_timeout_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        n = self.n_agents
+        if not 0 <= self.agent_id < n:
+            raise ValueError(f"agent_id {self.agent_id} outside 0..{n - 1}")
+        for i, j in self.edges:
+            if not (0 <= i < n and 0 <= j < n) or i == j:
+                raise ValueError(f"bad edge ({i}, {j}) for {n} agents")
+        if len(self.p_hat0_ned) not in (0, n) or len(self.yaw_hat0_rad) not in (0, n):
+            raise ValueError("p_hat0_ned and yaw_hat0_rad need one entry per agent")
+        if self.mode in ("formation", "formation-active") and not self.desired_beta_body:
+            raise ValueError(f"mode {self.mode!r} needs desired_beta_body")
+        if self.excitation_relay_every < 1:
+            raise ValueError("excitation_relay_every must be >= 1")
+        if self.p_norm >= 0.0:
+            raise ValueError("p_norm must be negative (a soft minimum)")
+
+
+def _rotz(psi: float, v: Vec3) -> Vec3:
+    c, s = math.cos(psi), math.sin(psi)
+    return (c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
+
+
+def _saturate(v: Vec3, limit: float) -> Vec3:
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if n <= limit:
+        return v
+    k = limit / n
+    return (k * v[0], k * v[1], k * v[2])
+
+
+def _finite(v: Iterable[float]) -> bool:
+    return all(math.isfinite(x) for x in v)
+
+
+class AgentCore:
+    """One vehicle's estimators and controllers (paper 000). See the module docstring."""
+
+    def __init__(self, config: AgentConfig) -> None:
+        cfg = config
+        self.config = cfg
+        me = cfg.agent_id
+        self.id = me
+        self.out_targets = sorted({j for i, j in cfg.edges if i == me})
+        self.in_sources = sorted({i for i, j in cfg.edges if j == me})
+        self.reciprocal = sorted(set(self.out_targets) & set(self.in_sources))
+        self.neighbours = sorted(set(self.out_targets) | set(self.in_sources))
+        self.running = [j for j in self.reciprocal if me < j]
+
+        p0 = cfg.p_hat0_ned or tuple((0.0, 0.0, 0.0) for _ in range(cfg.n_agents))
+        y0 = cfg.yaw_hat0_rad or tuple(0.0 for _ in range(cfg.n_agents))
+        self.localization = LocalizationFilter(
+            tuple(p0[me]), y0[me], cfg.k_loc_bearing, cfg.k_loc_distance
+        )
+        self.sfm: dict[int, SfmEdge] = {}
+        for j in self.running:
+            d0 = math.dist(p0[me], p0[j]) if cfg.p_hat0_ned else 1.0
+            self.sfm[j] = SfmEdge(
+                chi_hat=1.0 / max(d0, 1e-3),
+                alpha=cfg.alpha,
+                h_other=cfg.h_other,
+                h_floor=cfg.h_floor,
+                window=WindowAverage(cfg.e_window_s),
+            )
+        self.yaw_edges = {j: RelativeYawEdge() for j in self.reciprocal}
+        self.desired = {(i, j): tuple(b) for i, j, b in cfg.desired_beta_body}
+
+        # latest peer data
+        self._motion: dict[int, MotionShare] = {}
+        self._loc: dict[int, LocalizationState] = {}
+        self._beta_in: dict[int, tuple[float, Vec3]] = {}  # j -> (stamp, beta_ji)
+        self._sfm_in: dict[int, tuple[float, float]] = {}  # j -> (stamp, chihat_ij)
+        self._cons_in: dict[str, dict[int, tuple[float, list[float], list[float]]]] = {}
+        self._heard: dict[int, float] = {}
+        self._lam_table: dict[tuple[int, int], tuple[float, float]] = {}  # edge -> (stamp, lambda)
+        # own bearings
+        self._beta_out: dict[int, tuple[float, Vec3]] = {}
+        self._last_frame_s = -math.inf
+        # consensus and control state
+        self._consensus: dict[str, PIConsensus] = {}
+        self.lambda_bar = 0.0
+        self.e_index = 0.0
+        self.k_e = 0.0
+        self.w_l = 0.0
+        self.dlam_dwl = 0.0
+        self.p_bar: Vec3 = (0.0, 0.0, 0.0)
+        self.u_cmd: Vec3 = (0.0, 0.0, 0.0)
+        self.w_cmd = 0.0
+        speed = math.sqrt(2.0 * cfg.nu_star)
+        self._random = RandomMotion(
+            seed=cfg.seed * 1000 + me, speed_m_s=speed, tau_s=cfg.random_tau_s
+        )
+        if cfg.mode == "active":
+            d = np.random.default_rng(cfg.seed * 1000 + me + 500).standard_normal(3)
+            self.u_cmd = tuple((speed * d / np.linalg.norm(d)).tolist())
+        self._t: float | None = None
+        self._seq = 0
+        self.dropped: dict[str, int] = {}
+        self._neighbour_set = frozenset(self.neighbours)
+        self._handlers = {
+            MotionShare: self._on_motion,
+            LocalizationState: self._on_localization,
+            BearingShare: self._on_bearings,
+            SfmEstimate: self._on_sfm,
+            ExcitationTable: self._on_excitation,
+            ConsensusState: self._on_consensus,
+        }
+        self._cons_out: tuple[list[str], list[list[float]], list[list[float]]] = ([], [], [])
+
+    # ----------------------------------------------------------------- inbox
+    def _drop(self, reason: str) -> None:
+        self.dropped[reason] = self.dropped.get(reason, 0) + 1
+
+    def _receive(self, msg: Payload, t_s: float) -> None:
+        j = msg.sender
+        if j not in self._neighbour_set:
+            self._drop("not_neighbour")
+            return
+        handler = self._handlers.get(type(msg))
+        if handler is None:
+            self._drop("unknown_type")
+            return
+        self._heard[j] = t_s
+        handler(j, msg)
+
+    def _on_motion(self, j: int, msg: MotionShare) -> None:
+        self._motion[j] = msg
+
+    def _on_localization(self, j: int, msg: LocalizationState) -> None:
+        self._loc[j] = msg
+
+    def _on_bearings(self, j: int, msg: BearingShare) -> None:
+        if len(msg.targets) != len(msg.beta_body):
+            self._drop("malformed")
+            return
+        for target, beta in zip(msg.targets, msg.beta_body, strict=True):
+            if target == self.id:
+                prev = self._beta_in.get(j)
+                if prev is None or msg.stamp_s > prev[0]:
+                    self._beta_in[j] = (msg.stamp_s, tuple(beta))
+                if j in self.yaw_edges:
+                    self.yaw_edges[j].add_peer(msg.stamp_s, msg.yaw_rad, tuple(beta))
+
+    def _on_sfm(self, j: int, msg: SfmEstimate) -> None:
+        n = len(msg.peers)
+        if not (len(msg.chi_hat_inv_m) == len(msg.excitation) == len(msg.e_index) == n):
+            self._drop("malformed")
+            return
+        for m, peer in enumerate(msg.peers):
+            if peer == self.id:
+                self._sfm_in[j] = (msg.stamp_s, msg.chi_hat_inv_m[m])
+
+    def _on_excitation(self, j: int, msg: ExcitationTable) -> None:
+        n = len(msg.first)
+        if not (len(msg.second) == len(msg.excitation) == len(msg.stamps_s) == n):
+            self._drop("malformed")
+            return
+        table = self._lam_table
+        for a, b, lam, stamp in zip(
+            msg.first, msg.second, msg.excitation, msg.stamps_s, strict=True
+        ):
+            prev = table.get((a, b))
+            if prev is None or stamp > prev[0]:
+                table[(a, b)] = (stamp, lam)
+
+    def _on_consensus(self, j: int, msg: ConsensusState) -> None:
+        if not len(msg.names) == len(msg.x) == len(msg.z):
+            self._drop("malformed")
+            return
+        for name, x, z in zip(msg.names, msg.x, msg.z, strict=True):
+            self._cons_in.setdefault(name, {})[j] = (msg.stamp_s, x, z)
+
+    def _fresh(self, stamp_s: float, t_s: float) -> bool:
+        return t_s - stamp_s <= self.config.peer_timeout_s
+
+    # ----------------------------------------------------------------- step
+    def step(
+        self, t_s: float, own: OwnMeasurements, inbox: Iterable[Payload] = ()
+    ) -> tuple[Setpoint, list[Payload]]:
+        """Advance the core to ``t_s`` and return the setpoint and the payloads to publish."""
+        cfg = self.config
+        dt = 0.0 if self._t is None else t_s - self._t
+        if dt < 0.0:
+            self._drop("time_backwards")
+            dt = 0.0
+        self._t = t_s
+        for msg in inbox:
+            self._receive(msg, t_s)
+        outbox: list[Payload] = []
+
+        try:  # plain floats: numpy scalars must not leak into payloads
+            v = own.v_body
+            u_i = (float(v[0]), float(v[1]), float(v[2]))
+            w_i = float(own.yaw_rate_rad_s)
+            yaw_own = float(own.yaw_rad)
+        except (TypeError, ValueError, IndexError):
+            u_i, w_i, yaw_own = (math.nan,) * 3, math.nan, math.nan
+        if not (_finite(u_i) and math.isfinite(w_i) and math.isfinite(yaw_own)):
+            self._drop("nonfinite_own")
+            return Setpoint(v_body=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0), []
+
+        frame = self._take_bearings(own, yaw_own, outbox)
+
+        # relative velocity on reciprocal edges: u_ij = iR_j u_j - u_i (eq. 7)
+        rel: dict[int, tuple[float, Vec3]] = {}
+        for j in self.reciprocal:
+            m = self._motion.get(j)
+            if m is None or not self._fresh(m.stamp_s, t_s):
+                continue
+            yaw_j = m.yaw_rad + m.yaw_rate_rad_s * (t_s - m.stamp_s)
+            psi = self.yaw_edges[j].psi(yaw_own, yaw_j)
+            if psi is None:
+                continue
+            uj = _rotz(psi, m.v_body)
+            rel[j] = (psi, (uj[0] - u_i[0], uj[1] - u_i[1], uj[2] - u_i[2]))
+
+        # SfM observers (eq. 8) on the edges this agent runs
+        ran = []
+        for j, edge in self.sfm.items():
+            if j not in rel:
+                continue
+            u_ij = rel[j][1]
+            if frame and j in self._beta_out:
+                stamp, beta = self._beta_out[j]
+                edge.new_bearing(beta, stamp, t_s, u_ij, w_i)
+            edge.step(t_s, dt, u_ij, w_i)
+            ran.append((j, edge))
+        if ran:
+            outbox.append(
+                SfmEstimate(
+                    sender=self.id,
+                    seq=self._seq,
+                    stamp_s=t_s,
+                    peers=[j for j, _ in ran],
+                    chi_hat_inv_m=[e.chi_hat for _, e in ran],
+                    excitation=[e.excitation for _, e in ran],
+                    e_index=[e.e_index for _, e in ran],
+                )
+            )
+
+        self._localize(dt, t_s, u_i, w_i)
+        self._cons_out = ([], [], [])
+        self._run_consensus(dt, t_s, rel, outbox)
+        v, w = self._control(dt, t_s, u_i, rel)
+        v = _saturate(v, cfg.v_max_m_s)
+        w = max(-cfg.yaw_rate_max_rad_s, min(cfg.yaw_rate_max_rad_s, w))
+
+        names, xs, zs = self._cons_out
+        if cfg.mode == "formation-active":
+            names.append("w_l")
+            xs.append([self.w_l])
+            zs.append([])
+        outbox.append(
+            ConsensusState(sender=self.id, seq=self._seq, stamp_s=t_s, names=names, x=xs, z=zs)
+        )
+        loc = self.localization
+        outbox.append(
+            MotionShare(
+                sender=self.id,
+                seq=self._seq,
+                stamp_s=t_s,
+                v_body=u_i,
+                yaw_rate_rad_s=w_i,
+                yaw_rad=yaw_own,
+            )
+        )
+        outbox.append(
+            LocalizationState(
+                sender=self.id,
+                seq=self._seq,
+                stamp_s=t_s,
+                p_hat_ned=loc.p_hat_ned,
+                yaw_hat_rad=loc.yaw_hat_rad,
+            )
+        )
+        self._seq += 1
+        return Setpoint(v_body=v, yaw_rate_rad_s=w), outbox
+
+    def _take_bearings(self, own: OwnMeasurements, yaw_own: float, outbox: list[Payload]) -> bool:
+        """Store a new camera frame, feed the relative-yaw trackers and share it."""
+        fresh: list[tuple[int, float, Vec3]] = []
+        newest = self._last_frame_s
+        for b in own.bearings:
+            if b.stamp_s <= self._last_frame_s or b.target not in self.out_targets:
+                continue
+            newest = max(newest, b.stamp_s)  # a bad detection is counted once, not every step
+            try:
+                beta = (float(b.beta_body[0]), float(b.beta_body[1]), float(b.beta_body[2]))
+            except (TypeError, ValueError, IndexError):
+                beta = (math.nan,) * 3
+            if not _finite(beta) or abs(beta[0] ** 2 + beta[1] ** 2 + beta[2] ** 2 - 1.0) > 1e-3:
+                self._drop("bad_bearing")
+                continue
+            fresh.append((b.target, float(b.stamp_s), beta))
+        self._last_frame_s = newest
+        if not fresh:
+            return False
+        stamp = max(s for _, s, _ in fresh)
+        for target, s, beta in fresh:
+            self._beta_out[target] = (s, beta)
+            if target in self.yaw_edges:
+                self.yaw_edges[target].add_own(s, yaw_own, beta)
+        outbox.append(
+            BearingShare(
+                sender=self.id,
+                seq=self._seq,
+                stamp_s=stamp,
+                yaw_rad=yaw_own,
+                targets=[t for t, _, _ in fresh],
+                beta_body=[b for _, _, b in fresh],
+            )
+        )
+        return True
+
+    def chi_hat(self, j: int) -> float | None:
+        """Current inverse-distance estimate on reciprocal edge ``(self, j)``, own or received."""
+        if j in self.sfm:
+            return self.sfm[j].chi_hat
+        m = self._sfm_in.get(j)
+        return None if m is None else m[1]
+
+    def _localize(self, dt: float, t_s: float, u_i: Vec3, w_i: float) -> None:
+        out_edges = []
+        for j in self.out_targets:
+            loc, b = self._loc.get(j), self._beta_out.get(j)
+            if loc is not None and b is not None and self._fresh(loc.stamp_s, t_s):
+                out_edges.append((loc.p_hat_ned, b[1]))
+        in_edges = []
+        for j in self.in_sources:
+            loc, b = self._loc.get(j), self._beta_in.get(j)
+            if loc is not None and b is not None and self._fresh(loc.stamp_s, t_s):
+                in_edges.append((loc.p_hat_ned, loc.yaw_hat_rad, b[1]))
+        distances = []
+        for j in self.reciprocal:
+            chi, loc = self.chi_hat(j), self._loc.get(j)
+            if chi is not None and chi >= self.config.chi_min_inv_m and loc is not None:
+                distances.append((loc.p_hat_ned, 1.0 / chi))
+        self.localization.step(dt, u_i, w_i, out_edges, in_edges, distances)
+
+    # ------------------------------------------------------------ consensus
+    def _consensus_step(self, name: str, dt: float, t_s: float, phi: list[float]) -> list[float]:
+        cfg = self.config
+        est = self._consensus.get(name)
+        if est is None:
+            est = PIConsensus(
+                list(phi), gamma=cfg.consensus_gamma, k_p=cfg.consensus_k_p, k_i=cfg.consensus_k_i
+            )
+            self._consensus[name] = est
+        nbrs = [
+            (x, z)
+            for stamp, x, z in self._cons_in.get(name, {}).values()
+            if self._fresh(stamp, t_s) and len(x) == len(phi) and len(z) == len(phi)
+        ]
+        x = est.step(dt, phi, nbrs)
+        names, xs, zs = self._cons_out
+        names.append(name)
+        xs.append(x)
+        zs.append(est.z)
+        return x
+
+    def _run_consensus(
+        self, dt: float, t_s: float, rel: dict[int, tuple[float, Vec3]], outbox: list[Payload]
+    ) -> None:
+        cfg = self.config
+        n = cfg.n_agents
+        p = cfg.p_norm
+        for j, edge in self.sfm.items():
+            if edge.beta_pred is not None:
+                self._lam_table[(self.id, j)] = (t_s, edge.excitation)
+        fresh = [(k, v) for k, v in self._lam_table.items() if self._fresh(v[0], t_s)]
+        self.lambda_bar = act.lambda_bar([v[1] for _, v in fresh], p)
+        # own edges every step, the relayed rest of the table every few steps
+        if self._seq % cfg.excitation_relay_every:
+            fresh = [(k, v) for k, v in fresh if k[0] == self.id]
+        if fresh:
+            outbox.append(
+                ExcitationTable(
+                    sender=self.id,
+                    seq=self._seq,
+                    stamp_s=t_s,
+                    first=[k[0] for k, _ in fresh],
+                    second=[k[1] for k, _ in fresh],
+                    excitation=[v[1] for _, v in fresh],
+                    stamps_s=[v[0] for _, v in fresh],
+                )
+            )
+        e_sum = sum(e.e_index for e in self.sfm.values())
+        x = self._consensus_step("e_index", dt, t_s, [e_sum])
+        self.e_index = max(n * x[0], 0.0)
+        if cfg.mode != "formation-active":
+            return
+        loc = self.localization
+        pb = self._consensus_step("p_bar", dt, t_s, list(loc.p_hat_ned))
+        self.p_bar = (pb[0], pb[1], pb[2])
+        grad = act.lambda_bar_gradient(self._excitation_terms(rel), self.lambda_bar, p)
+        n3 = act.rotation_velocity_body(loc.p_hat_ned, loc.yaw_hat_rad, self.p_bar)
+        delta = grad[0] * n3[0] + grad[1] * n3[1] + grad[2] * n3[2]
+        x = self._consensus_step("dlam_dwl", dt, t_s, [delta])
+        self.dlam_dwl = n * x[0]
+
+    def _excitation_terms(
+        self, rel: dict[int, tuple[float, Vec3]]
+    ) -> list[tuple[Vec3, Vec3, float]]:
+        """``(beta_ij, u_ij, lambda_ij)`` for reciprocal edges with a bearing and a relative yaw."""
+        terms = []
+        for j, (_, u_ij) in rel.items():
+            b = self._beta_out.get(j)
+            if b is not None:
+                terms.append((b[1], u_ij, excitation(b[1], u_ij)))
+        return terms
+
+    # ------------------------------------------------------------- control
+    def _control(
+        self, dt: float, t_s: float, u_i: Vec3, rel: dict[int, tuple[float, Vec3]]
+    ) -> tuple[Vec3, float]:
+        cfg = self.config
+        mode = cfg.mode
+        if mode == "hold":
+            return (0.0, 0.0, 0.0), 0.0
+        if mode == "random":
+            self.u_cmd = self._random.step(dt)
+            return self.u_cmd, 0.0
+        if mode == "active":
+            grad = act.lambda_bar_gradient(self._excitation_terms(rel), self.lambda_bar, cfg.p_norm)
+            du = act.active_velocity_rate(self.u_cmd, grad, cfg.k_nu, cfg.nu_star, cfg.k_lambda)
+            u = self.u_cmd
+            self.u_cmd = (u[0] + dt * du[0], u[1] + dt * du[1], u[2] + dt * du[2])
+            return self.u_cmd, 0.0
+        u_f, w_f = self._formation(t_s)
+        if mode == "formation":
+            return u_f, w_f
+        # formation-active (eq. 13-16)
+        self.k_e = act.convergence_gain(self.e_index, cfg.e_low, cfg.e_high)
+        dw = act.rotation_rate_derivative(
+            self.w_l, self.dlam_dwl, self.lambda_bar, self.k_e, cfg.k_w, cfg.k_lambda0, cfg.gamma
+        )
+        shared = [
+            x[0]
+            for stamp, x, _ in self._cons_in.get("w_l", {}).values()
+            if self._fresh(stamp, t_s) and len(x) == 1
+        ]
+        dw += cfg.k_w_l_coupling * sum(w - self.w_l for w in shared)
+        self.w_l += dt * dw
+        loc = self.localization
+        n3 = act.rotation_velocity_body(loc.p_hat_ned, loc.yaw_hat_rad, self.p_bar)
+        wl = self.w_l
+        return (u_f[0] + wl * n3[0], u_f[1] + wl * n3[1], u_f[2] + wl * n3[2]), w_f + wl
+
+    def _formation(self, t_s: float) -> tuple[Vec3, float]:
+        """``(u^F, w^F)``: bearing formation law (paper 002 eq. 20) and yaw alignment."""
+        cfg = self.config
+        me = self.id
+        yaw_i = self.localization.yaw_hat_rad
+        out_edges = [
+            (self._beta_out[j][1], self.desired[(me, j)])
+            for j in self.out_targets
+            if j in self._beta_out and (me, j) in self.desired
+        ]
+        in_edges = []
+        yaws = []
+        for j in self.neighbours:
+            loc = self._loc.get(j)
+            if loc is None or not self._fresh(loc.stamp_s, t_s):
+                continue
+            if cfg.desired_yaw_rad:
+                yaws.append((loc.yaw_hat_rad, cfg.desired_yaw_rad[j] - cfg.desired_yaw_rad[me]))
+            b = self._beta_in.get(j)
+            if b is not None and (j, me) in self.desired:
+                in_edges.append((loc.yaw_hat_rad - yaw_i, b[1], self.desired[(j, me)]))
+        u_f = formation_velocity(out_edges, in_edges, cfg.k_formation)
+        w_f = yaw_alignment_rate(yaw_i, yaws, cfg.k_yaw)
+        return u_f, w_f
+
+    # -------------------------------------------------------------- status
+    def status(self) -> AgentStatus:
+        """Health and estimates for the ground station."""
+        loc = self.localization
+        t = self._t or 0.0
+        chis = {j: c for j in self.reciprocal if (c := self.chi_hat(j)) is not None}
+        return AgentStatus(
+            sender=self.id,
+            seq=self._seq,
+            stamp_s=t,
+            mode=self.config.mode,
+            p_hat_ned=loc.p_hat_ned,
+            yaw_hat_rad=loc.yaw_hat_rad,
+            chi_hat_inv_m=chis,
+            e_index=self.e_index,
+            lambda_bar=self.lambda_bar,
+            neighbours=sorted(j for j, s in self._heard.items() if t - s <= 1.0),
+        )

@@ -1,0 +1,1 @@
+"""Onboard controllers: active scale estimation, bearing formation, random-motion baseline."""

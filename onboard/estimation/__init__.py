@@ -1,0 +1,1 @@
+"""Onboard estimators: relative yaw, SfM inverse-depth observer, localization, consensus."""

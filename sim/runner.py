@@ -1,0 +1,339 @@
+"""Headless runner: N agent cores and a kinematic R^3 x S^1 world on one fixed clock.
+
+The world is paper 000's model (eq. 1): ``p_i' = R_z(psi_i) u_i``, ``psi_i' = w_i`` with the
+commanded ``(u_i, w_i)`` flown exactly (explicit Euler, step ``dt``, 2 ms by default). Every
+step each core gets only what its vehicle measures:
+
+* its odometry yaw ``psi_i + o_i`` with an unknown constant offset ``o_i`` per vehicle (agents
+  share no frame), its body velocity and yaw rate (optionally noisy);
+* its latest camera frame: body-frame bearings along the sensing graph, computed from the
+  truth at ``camera_rate_hz`` (50 Hz), optionally perturbed by isotropic angular noise;
+
+and the peer payloads that reached it. Payloads are broadcast along the communication graph
+(both directions of every sensing edge) and delivered ``1 + round(latency / dt)`` steps later,
+each copy lost with probability ``loss``. Truth goes only to the :class:`Recording`. All
+randomness comes from the seed: the same seed gives the same run.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from messages.agent import BearingMeasurement, OwnMeasurements
+from messages.codec import Payload
+from onboard.agent import AgentConfig, AgentCore
+from onboard.geometry import FloatArray, IntArray, bearings_body, rot_z
+from onboard.graph import normalize_edges, reciprocal_pairs
+
+
+@dataclass(frozen=True)
+class RunnerConfig:
+    """Clock, sensing and network of one headless run."""
+
+    duration_s: float = 20.0
+    dt_s: float = 0.002
+    camera_rate_hz: float = 50.0
+    latency_s: float = 0.0
+    """Extra delay of every payload on top of the one-step transport delay."""
+    loss: float = 0.0
+    """Probability that one copy of a payload is lost (independent per receiver)."""
+    bearing_noise_rad: float = 0.0
+    """Standard deviation of the angular noise of each bearing (per axis of the tangent plane)."""
+    velocity_noise_m_s: float = 0.0
+    yaw_rate_noise_rad_s: float = 0.0
+    yaw_offset_max_rad: float = math.pi
+    """Odometry yaw offsets are drawn uniformly in ``[-max, max]``."""
+    record_every: int = 5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.dt_s <= 0 or self.duration_s <= 0 or self.camera_rate_hz <= 0:
+            raise ValueError("dt_s, duration_s and camera_rate_hz must be positive")
+        if not 0.0 <= self.loss < 1.0:
+            raise ValueError("loss must be in [0, 1)")
+        if self.record_every < 1:
+            raise ValueError("record_every must be >= 1")
+
+
+@dataclass
+class Recording:
+    """Everything a run produced, sampled every ``record_every`` steps (truth and estimates)."""
+
+    edges: IntArray
+    pairs: IntArray
+    """Reciprocal pairs ``(i, j)``, ``i < j``: the SfM edges, in the column order of ``chi_*``."""
+    t_s: FloatArray
+    p_ned: FloatArray
+    yaw_rad: FloatArray
+    v_ned: FloatArray
+    p_hat_ned: FloatArray
+    yaw_hat_rad: FloatArray
+    chi_hat: FloatArray
+    lambda_bar_est: FloatArray
+    e_index_est: FloatArray
+    k_e: FloatArray
+    w_l: FloatArray
+    desired_beta_body: FloatArray | None = None
+    """``(E, 3)`` desired bearings in edge order, for formation scenarios."""
+    dropped: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def chi_true(self) -> FloatArray:
+        r = self.p_ned[:, self.pairs[:, 1]] - self.p_ned[:, self.pairs[:, 0]]
+        return 1.0 / np.linalg.norm(r, axis=-1)
+
+    @property
+    def chi_error(self) -> FloatArray:
+        return self.chi_hat - self.chi_true
+
+    @property
+    def excitation_true(self) -> FloatArray:
+        """``lambda_ij = u_ij^T P_ij u_ij`` per reciprocal pair from the true motion, ``(T, K)``."""
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        r = self.p_ned[:, j] - self.p_ned[:, i]
+        b = r / np.linalg.norm(r, axis=-1, keepdims=True)
+        u = self.v_ned[:, j] - self.v_ned[:, i]  # world frame: the norm is frame-free
+        return np.maximum(np.sum(u * u, axis=-1) - np.sum(u * b, axis=-1) ** 2, 0.0)
+
+    def lambda_bar_true(self, p: float = -5.0) -> FloatArray:
+        lam = np.maximum(self.excitation_true, 1e-12)
+        return np.sum(lam**p, axis=1) ** (1.0 / p)
+
+    def beta_body(self) -> FloatArray:
+        """True body-frame bearings ``(T, E, 3)``."""
+        out = [
+            bearings_body(p, y, self.edges)[0]
+            for p, y in zip(self.p_ned, self.yaw_rad, strict=True)
+        ]
+        return np.asarray(out)
+
+    def beta_hat_body(self) -> FloatArray:
+        """Bearings of the estimated configuration ``(T, E, 3)``."""
+        out = [
+            bearings_body(p, y, self.edges)[0]
+            for p, y in zip(self.p_hat_ned, self.yaw_hat_rad, strict=True)
+        ]
+        return np.asarray(out)
+
+
+def align_yaw_translation(p_est: ArrayLike, p_true: ArrayLike) -> FloatArray:
+    """Move ``p_est`` by the rotation about the vertical and the translation (no scaling) that
+    best fit ``p_true`` in least squares; returns the aligned ``(N, 3)`` estimate."""
+    pe = np.asarray(p_est, dtype=float)
+    pt = np.asarray(p_true, dtype=float)
+    ce, ct = pe.mean(axis=0), pt.mean(axis=0)
+    a, b = pe - ce, pt - ct
+    # maximize sum b . R_z(th) a over th (2-D Procrustes on the horizontal components)
+    s = np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    c = np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])
+    return (rot_z(math.atan2(s, c)) @ a.T).T + ct
+
+
+def localization_error(p_est: ArrayLike, p_true: ArrayLike) -> float:
+    """RMS position error (m) after aligning yaw and translation, the estimator's free motions."""
+    d = align_yaw_translation(p_est, p_true) - np.asarray(p_true, dtype=float)
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+def scale_ratio(p_est: ArrayLike, p_true: ArrayLike) -> float:
+    """Size of the estimated formation over the true one (1 = correct scale)."""
+    pe = np.asarray(p_est, dtype=float)
+    pt = np.asarray(p_true, dtype=float)
+    return float(np.linalg.norm(pe - pe.mean(axis=0)) / np.linalg.norm(pt - pt.mean(axis=0)))
+
+
+def _noisy_unit(b: FloatArray, sigma: float, rng: np.random.Generator) -> FloatArray:
+    if sigma <= 0.0:
+        return b
+    n = rng.standard_normal(b.shape) * sigma
+    n -= np.sum(n * b, axis=1, keepdims=True) * b  # tangent plane
+    out = b + n
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def run(
+    configs: Sequence[AgentConfig],
+    p0_ned: ArrayLike,
+    yaw0_rad: ArrayLike,
+    runner: RunnerConfig = RunnerConfig(),
+    progress: Callable[[float], None] | None = None,
+) -> Recording:
+    """Run ``len(configs)`` agent cores from the true initial state ``(p0_ned, yaw0_rad)``."""
+    n = len(configs)
+    p0 = np.asarray(p0_ned, dtype=float).reshape(n, 3)
+    y0 = np.asarray(yaw0_rad, dtype=float).reshape(n)
+    edges = normalize_edges(configs[0].edges)
+    pairs = reciprocal_pairs(edges)
+    cores = [AgentCore(c) for c in configs]
+    rng = np.random.default_rng(runner.seed)
+    loss_rng = random.Random(runner.seed)
+    offsets = rng.uniform(-runner.yaw_offset_max_rad, runner.yaw_offset_max_rad, n).tolist()
+
+    comm: list[list[int]] = [[] for _ in range(n)]
+    for i, j in edges:
+        for a, b in ((int(i), int(j)), (int(j), int(i))):
+            if b not in comm[a]:
+                comm[a].append(b)
+    edge_rows = [np.flatnonzero(edges[:, 0] == i) for i in range(n)]
+
+    dt = runner.dt_s
+    n_steps = round(runner.duration_s / dt)
+    frame_every = max(1, round(1.0 / (runner.camera_rate_hz * dt)))
+    lag = round(runner.latency_s / dt)
+    n_rec = n_steps // runner.record_every + 1
+    k_count = len(pairs)
+    rec = Recording(
+        edges=edges,
+        pairs=pairs,
+        t_s=np.zeros(n_rec),
+        p_ned=np.zeros((n_rec, n, 3)),
+        yaw_rad=np.zeros((n_rec, n)),
+        v_ned=np.zeros((n_rec, n, 3)),
+        p_hat_ned=np.zeros((n_rec, n, 3)),
+        yaw_hat_rad=np.zeros((n_rec, n)),
+        chi_hat=np.full((n_rec, k_count), np.nan),
+        lambda_bar_est=np.zeros((n_rec, n)),
+        e_index_est=np.zeros((n_rec, n)),
+        k_e=np.zeros((n_rec, n)),
+        w_l=np.zeros((n_rec, n)),
+    )
+
+    p = p0.tolist()
+    yaw = y0.tolist()
+    v_body = [(0.0, 0.0, 0.0)] * n
+    w_body = [0.0] * n
+    frames: list[tuple[BearingMeasurement, ...]] = [()] * n
+    pending: dict[int, list[list[Payload]]] = {}
+    noise_v = runner.velocity_noise_m_s
+    noise_w = runner.yaw_rate_noise_rad_s
+    r_idx = 0
+    report_every = max(1, n_steps // 100)
+
+    for k in range(n_steps + 1):
+        t = k * dt
+        if k % frame_every == 0:
+            beta, _ = bearings_body(np.asarray(p), np.asarray(yaw), edges)
+            beta = _noisy_unit(beta, runner.bearing_noise_rad, rng)
+            rows = beta.tolist()
+            frames = [
+                tuple(BearingMeasurement(int(edges[e, 1]), tuple(rows[e]), t) for e in edge_rows[i])
+                for i in range(n)
+            ]
+        inboxes = pending.pop(k, None) or [[] for _ in range(n)]
+        if noise_v > 0.0 or noise_w > 0.0:
+            nz = rng.standard_normal((n, 4)).tolist()
+        else:
+            nz = None
+        setpoints = []
+        for i, core in enumerate(cores):
+            v, w = v_body[i], w_body[i]
+            if nz is not None:
+                e = nz[i]
+                v = (v[0] + noise_v * e[0], v[1] + noise_v * e[1], v[2] + noise_v * e[2])
+                w = w + noise_w * e[3]
+            own = OwnMeasurements(
+                t_s=t, yaw_rad=yaw[i] + offsets[i], v_body=v, yaw_rate_rad_s=w, bearings=frames[i]
+            )
+            sp, out = core.step(t, own, inboxes[i])
+            setpoints.append(sp)
+            if out:
+                target = pending.setdefault(k + 1 + lag, [[] for _ in range(n)])
+                for r in comm[i]:
+                    if runner.loss > 0.0:
+                        target[r].extend(m for m in out if loss_rng.random() >= runner.loss)
+                    else:
+                        target[r].extend(out)
+        if k % runner.record_every == 0:
+            _record(rec, r_idx, t, p, yaw, v_body, cores, pairs)
+            r_idx += 1
+        for i, sp in enumerate(setpoints):
+            u, w = sp.v_body, sp.yaw_rate_rad_s
+            c, s = math.cos(yaw[i]), math.sin(yaw[i])
+            pi = p[i]
+            p[i] = [
+                pi[0] + dt * (c * u[0] - s * u[1]),
+                pi[1] + dt * (s * u[0] + c * u[1]),
+                pi[2] + dt * u[2],
+            ]
+            yaw[i] = yaw[i] + dt * w
+            v_body[i] = u
+            w_body[i] = w
+        if progress is not None and (k % report_every == 0 or k == n_steps):
+            progress(k / n_steps)
+    for core in cores:
+        for reason, count in core.dropped.items():
+            rec.dropped[reason] = rec.dropped.get(reason, 0) + count
+    return rec
+
+
+def _record(
+    rec: Recording,
+    r: int,
+    t: float,
+    p: list[list[float]],
+    yaw: list[float],
+    v_body: list[tuple[float, float, float]],
+    cores: list[AgentCore],
+    pairs: IntArray,
+) -> None:
+    rec.t_s[r] = t
+    rec.p_ned[r] = p
+    rec.yaw_rad[r] = yaw
+    y = np.asarray(yaw)
+    rec.v_ned[r] = np.einsum("nij,nj->ni", rot_z(y), np.asarray(v_body))
+    for i, core in enumerate(cores):
+        loc = core.localization
+        rec.p_hat_ned[r, i] = loc.p_hat_ned
+        rec.yaw_hat_rad[r, i] = loc.yaw_hat_rad
+        rec.lambda_bar_est[r, i] = core.lambda_bar
+        rec.e_index_est[r, i] = core.e_index
+        rec.k_e[r, i] = core.k_e
+        rec.w_l[r, i] = core.w_l
+    for k, (i, j) in enumerate(pairs):
+        chi = cores[int(i)].chi_hat(int(j))
+        if chi is not None:
+            rec.chi_hat[r, k] = chi
+
+
+def converged_time(t_s: FloatArray, error: FloatArray, threshold: float = 0.01) -> float | None:
+    """First time after which every ``|error|`` stays below ``threshold``; ``None`` if never.
+
+    ``error`` is ``(T, K)``; NaN (no estimate yet) counts as not converged.
+    """
+    ok = np.all(np.abs(np.nan_to_num(error, nan=np.inf)) < threshold, axis=1)
+    if not ok[-1]:
+        return None
+    bad = np.flatnonzero(~ok)
+    return float(t_s[0] if len(bad) == 0 else t_s[bad[-1] + 1])
+
+
+def summarize(rec: Recording, threshold: float = 0.01) -> dict[str, float | None]:
+    """Scalar results of a run (the numbers ``bearingflock scenario --json`` prints)."""
+    err = rec.chi_error
+    conv = converged_time(rec.t_s, err, threshold)
+    final_err = np.abs(err[-1])
+    beta_true = bearings_body(rec.p_ned[-1], rec.yaw_rad[-1], rec.edges)[0]
+    beta_hat = bearings_body(rec.p_hat_ned[-1], rec.yaw_hat_rad[-1], rec.edges)[0]
+    cos_loc = np.clip(np.sum(beta_true * beta_hat, axis=1), -1.0, 1.0)
+    out: dict[str, float | None] = {
+        "converged_s": conv,
+        "converged_s_at_0p02": converged_time(rec.t_s, err, 0.02),
+        "lambda_bar_mean": float(np.mean(rec.lambda_bar_true())),
+        "final_chi_error_max": float(np.nanmax(final_err))
+        if np.any(np.isfinite(final_err))
+        else None,
+        "final_localization_error": localization_error(rec.p_hat_ned[-1], rec.p_ned[-1]),
+        "final_scale_ratio": scale_ratio(rec.p_hat_ned[-1], rec.p_ned[-1]),
+        "final_bearing_localization_error_deg": float(np.degrees(np.max(np.arccos(cos_loc)))),
+        "final_bearing_error_deg": None,
+    }
+    if rec.desired_beta_body is not None:
+        cos_f = np.clip(np.sum(beta_true * rec.desired_beta_body, axis=1), -1.0, 1.0)
+        out["final_bearing_error_deg"] = float(np.degrees(np.max(np.arccos(cos_f))))
+    return out

@@ -1,0 +1,143 @@
+"""The agent core: configuration checks, wire-compatible outbox, bad input never crashes, and a
+three-agent team estimating its distances with hand-delivered messages (no runner)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from messages.agent import BearingMeasurement, OwnMeasurements
+from messages.codec import decode, encode
+from messages.peer import BearingShare, MotionShare, PeerPayload
+from onboard.agent import AgentConfig, AgentCore
+from onboard.geometry import bearings_body, rot_z
+
+TRIANGLE = ((0, 1), (1, 0), (1, 2), (2, 1), (0, 2), (2, 0))
+P0 = np.array([[0.0, 0.0, -2.0], [2.5, 0.5, -2.6], [0.5, 2.6, -1.5]])
+YAW0 = np.array([0.3, 2.2, -1.4])
+
+
+def _configs(mode="active", **kw):
+    p_hat0 = tuple(tuple(float(x) for x in 0.7 * row) for row in P0)
+    return [
+        AgentConfig(
+            agent_id=i,
+            n_agents=3,
+            edges=TRIANGLE,
+            mode=mode,
+            p_hat0_ned=p_hat0,
+            yaw_hat0_rad=tuple(float(y) for y in YAW0),
+            seed=1,
+            **kw,
+        )
+        for i in range(3)
+    ]
+
+
+def test_config_rejects_inconsistent_input():
+    with pytest.raises(ValueError):
+        AgentConfig(agent_id=3, n_agents=3, edges=TRIANGLE)
+    with pytest.raises(ValueError):
+        AgentConfig(agent_id=0, n_agents=3, edges=((0, 5),))
+    with pytest.raises(ValueError):
+        AgentConfig(agent_id=0, n_agents=3, edges=TRIANGLE, mode="formation")
+    with pytest.raises(ValueError):
+        AgentConfig(agent_id=0, n_agents=3, edges=TRIANGLE, p_hat0_ned=((0.0, 0.0, 0.0),))
+    assert AgentConfig(agent_id=0, n_agents=3, edges=TRIANGLE).alpha == 10.0
+
+
+def _own(t, p, yaw, v, w, i, offset=0.0):
+    b, _ = bearings_body(p, yaw, [(i, j) for j in range(3) if j != i])
+    others = [j for j in range(3) if j != i]
+    return OwnMeasurements(
+        t_s=t,
+        yaw_rad=float(yaw[i] + offset),
+        v_body=tuple(v[i]),
+        yaw_rate_rad_s=float(w[i]),
+        bearings=tuple(BearingMeasurement(j, tuple(b[k]), t) for k, j in enumerate(others)),
+    )
+
+
+def _run_team(duration, mode="active"):
+    cores = [AgentCore(c) for c in _configs(mode)]
+    p, yaw = P0.copy(), YAW0.copy()
+    v = np.zeros((3, 3))
+    w = np.zeros(3)
+    offsets = [1.0, -2.0, 0.5]
+    inbox = [[], [], []]
+    dt = 0.002
+    history = []
+    for k in range(int(duration / dt)):
+        t = k * dt
+        frame_t = math.floor(t / 0.02 + 1e-9) * 0.02
+        if k % 10 == 0:
+            frames = [_own(t, p, yaw, v, w, i) for i in range(3)]
+        outs = []
+        for i, core in enumerate(cores):
+            own = frames[i]
+            own = OwnMeasurements(
+                t_s=t,
+                yaw_rad=float(yaw[i] + offsets[i]),
+                v_body=tuple(v[i]),
+                yaw_rate_rad_s=float(w[i]),
+                bearings=own.bearings,
+            )
+            sp, out = core.step(t, own, inbox[i])
+            v[i], w[i] = sp.v_body, sp.yaw_rate_rad_s
+            outs.append(out)
+        inbox = [[m for j in range(3) if j != i for m in outs[j]] for i in range(3)]
+        p = p + dt * np.einsum("nij,nj->ni", rot_z(yaw), v)
+        yaw = yaw + dt * w
+        assert frame_t <= t
+        history.append((t, p.copy(), [c.chi_hat(1) for c in cores[:1]], outs))
+    return cores, p, history
+
+
+def test_team_estimates_distances_and_shares_them():
+    cores, p, history = _run_team(3.0)
+    d01 = np.linalg.norm(p[1] - p[0])
+    d12 = np.linalg.norm(p[2] - p[1])
+    assert cores[0].chi_hat(1) == pytest.approx(1 / d01, abs=0.01)
+    assert cores[1].chi_hat(2) == pytest.approx(1 / d12, abs=0.01)
+    # the higher id received the lower id's estimate (one step old)
+    assert cores[1].chi_hat(0) == pytest.approx(cores[0].chi_hat(1), abs=1e-3)
+    assert cores[0].lambda_bar > 0.05
+    # every payload survives the wire
+    for out in history[-1][3]:
+        for msg in out:
+            assert decode(encode(msg), PeerPayload) == msg
+    status = cores[0].status()
+    assert set(status.chi_hat_inv_m) == {1, 2} and status.neighbours == [1, 2]
+
+
+def test_bad_input_is_counted_not_fatal():
+    core = AgentCore(_configs()[0])
+    own = OwnMeasurements(t_s=0.0, yaw_rad=0.0, v_body=(0.1, 0.0, 0.0), yaw_rate_rad_s=0.0)
+    sp, _ = core.step(0.0, own)
+    nan_own = OwnMeasurements(t_s=0.002, yaw_rad=0.0, v_body=(math.nan, 0, 0), yaw_rate_rad_s=0.0)
+    sp, out = core.step(0.002, nan_own)
+    assert sp.v_body == (0.0, 0.0, 0.0) and out == []
+    bad = [
+        MotionShare(sender=7, v_body=(0, 0, 0), yaw_rate_rad_s=0.0, yaw_rad=0.0),  # unknown
+        BearingShare(sender=1, yaw_rad=0.0, targets=[0, 2], beta_body=[(1.0, 0.0, 0.0)]),
+    ]
+    sp, out = core.step(0.004, own, bad)
+    core.step(0.001, own)  # time going backwards
+    frame = (
+        BearingMeasurement(1, (math.nan, 0.0, 0.0), 0.01),
+        BearingMeasurement(2, (2.0, 0, 0), 0.01),
+    )
+    core.step(
+        0.01,
+        OwnMeasurements(
+            t_s=0.01, yaw_rad=0.0, v_body=(0.1, 0, 0), yaw_rate_rad_s=0.0, bearings=frame
+        ),
+    )
+    assert core.dropped == {
+        "nonfinite_own": 1,
+        "not_neighbour": 1,
+        "malformed": 1,
+        "time_backwards": 1,
+        "bad_bearing": 2,
+    }
+    assert all(math.isfinite(x) for x in sp.v_body)
