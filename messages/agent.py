@@ -54,3 +54,28 @@ class AgentStatus(Payload, tag="agent.status"):
     """Network observability index ``lambdabar`` (eq. 11) as estimated by consensus."""
     neighbours: list[int]
     """Neighbours heard from in the last second."""
+    rigidity_eigenvalue: float | None = None
+    """Weighted angle-rigidity eigenvalue (paper 003), when the agent estimates it."""
+    scale_converged: bool = False
+    """Every SfM observer this agent knows has ``E`` below the convergence threshold."""
+
+
+class VehicleStatus(Payload, tag="vehicle.status"):
+    """What an onboard daemon publishes for the ground station (``bf/<fleet>/<id>/status``):
+    its agent core's status plus the autopilot link and the daemon's own health."""
+
+    agent: AgentStatus
+    autopilot_mode: str
+    armed: bool
+    in_air: bool
+    altitude_m: float
+    speed_m_s: float
+    battery_pct: float | None
+    heartbeat_age_s: float
+    """Age of the autopilot's last HEARTBEAT as the daemon sees it."""
+    phase: str
+    """Daemon phase: connecting, waiting, ready, flying, holding, landing, stopped."""
+    alarms: list[str] = msgspec.field(default_factory=list)
+    """Active alarms, e.g. ``peer_lost:3``, ``rigidity_low``, ``estimate_diverging``, ``failsafe``."""
+    dropped: dict[str, int] = msgspec.field(default_factory=dict)
+    """Counters of dropped input by reason (malformed, version, nonfinite, unknown_sender, ...)."""

@@ -5,6 +5,13 @@ from __future__ import annotations
 import re
 
 PREFIX = "bf"
+SIM_ENTITY = "sim"
+"""The simulator publishes fleet-wide topics under ``bf/<fleet>/sim/...`` (its clock)."""
+
+# Topics of one agent, ``bf/<fleet>/<id>/<topic>``.
+STATUS_TOPIC = "status"  # messages.agent.VehicleStatus, for the ground station
+PEER_TOPIC = "peer"  # messages.peer payloads, ``peer/<kind>`` (kind = the payload's tag)
+ALIVE_TOPIC = "alive"  # liveliness token of a running agent
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
@@ -25,7 +32,12 @@ def key(fleet: str, agent_id: int, topic: str) -> str:
 
 def alive_key(fleet: str, agent_id: int) -> str:
     """Liveliness token of a running agent."""
-    return key(fleet, agent_id, "alive")
+    return key(fleet, agent_id, ALIVE_TOPIC)
+
+
+def peer_key(fleet: str, agent_id: int, kind: str) -> str:
+    """Key of one kind of peer payload, e.g. ``bf/alpha/3/peer/motion``."""
+    return key(fleet, agent_id, f"{PEER_TOPIC}/{kind}")
 
 
 def fleet_keys(fleet: str) -> str:
@@ -39,7 +51,8 @@ def topic_keys(fleet: str, topic: str) -> str:
 
 
 def parse_key(k: str) -> tuple[str, int, str]:
-    """Split ``bf/<fleet>/<id>/<topic>`` into ``(fleet, id, topic)``; ``ValueError`` otherwise."""
+    """Split ``bf/<fleet>/<id>/<topic>`` into ``(fleet, id, topic)``; ``ValueError`` otherwise
+    (also for the simulator's ``bf/<fleet>/sim/...`` keys: check :func:`is_sim_key` first)."""
     parts = str(k).split("/", 3)
     if len(parts) != 4 or parts[0] != PREFIX or not _NAME.match(parts[1]):
         raise ValueError(f"not a bearingflock key: {k!r}")
@@ -48,3 +61,9 @@ def parse_key(k: str) -> tuple[str, int, str]:
     except ValueError:
         raise ValueError(f"agent id in {k!r} is not an integer") from None
     return parts[1], agent_id, parts[3]
+
+
+def is_sim_key(k: str) -> bool:
+    """Whether ``k`` is a fleet-wide simulator key ``bf/<fleet>/sim/<topic>``."""
+    parts = str(k).split("/", 3)
+    return len(parts) == 4 and parts[0] == PREFIX and parts[2] == SIM_ENTITY
