@@ -1,0 +1,327 @@
+"""The autopilot link's interface, its typed results and its configuration.
+
+An :class:`AutopilotLink` is the daemon's only way to the flight controller. Two backends
+implement it: :class:`onboard.autopilot.pymavlink_link.PymavlinkLink` (the main one: raw
+MAVLink over UDP/TCP/serial with pymavlink) and :class:`onboard.autopilot.mavsdk_link.MavsdkLink`
+(MAVSDK v4, the native binding). The agent loop calls it from its own thread:
+
+* ``connect(url)`` waits for the autopilot's HEARTBEAT, picks the target system and detects the
+  flavour (PX4 or ArduPilot) from the heartbeat's ``autopilot`` field;
+* ``telemetry()`` returns a :class:`Telemetry` snapshot (never blocks);
+* ``request_streams()``, ``wait_ready()``, ``arm()``, ``takeoff()``, ``land()``, ``hold()``,
+  ``disarm()``, ``set_mode()`` and ``start_velocity_control()`` block until done and return an
+  :class:`ActionResult` (they never raise on a refusal or a timeout);
+* ``set_setpoint(v_body, yaw_rate)`` stores the latest command (saturated, NaN-safe); a
+  background sender streams it at :attr:`LinkConfig.rate_hz` while velocity control is active;
+* ``stop_streaming()`` stops the stream (the autopilot then fails safe: PX4 leaves OFFBOARD after
+  ``COM_OF_LOSS_T``, ArduPilot zeroes the velocity after ``GUID_TIMEOUT``), and the link stops it by
+  itself when the pilot takes the vehicle out of OFFBOARD/GUIDED, reporting a :class:`LinkEvent`;
+* ``close()`` stops every thread and releases the connection.
+
+Frames: ``v_body`` is the velocity in the vehicle's heading frame (FRD with roll and pitch
+removed, ``v_body = R_z(yaw)^T v_ned``): the frame of the agent model ``pdot = R_z(psi) u``
+(``shared/notes/equations.md``) and of MAVLink's ``MAV_FRAME_BODY_NED`` velocity setpoints, which
+both autopilots rotate by the current yaw only.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+Vec3 = tuple[float, float, float]
+
+
+class Flavour(enum.Enum):
+    """Which autopilot firmware is on the other end (from HEARTBEAT ``autopilot``)."""
+
+    PX4 = "px4"
+    ARDUPILOT = "ardupilot"
+
+
+class StreamState(enum.Enum):
+    """Where the velocity-setpoint stream is."""
+
+    IDLE = "idle"
+    """Nothing is sent."""
+    PRIMING = "priming"
+    """Setpoints are sent, the control mode is being entered (PX4 needs setpoints first)."""
+    ACTIVE = "active"
+    """The vehicle is in OFFBOARD/GUIDED and flies the streamed setpoints."""
+
+
+DEFAULT_STREAM_RATES_HZ: Mapping[str, float] = {
+    "ATTITUDE": 20.0,
+    "LOCAL_POSITION_NED": 20.0,
+    "GLOBAL_POSITION_INT": 5.0,
+    "EXTENDED_SYS_STATE": 2.0,
+    "SYS_STATUS": 2.0,
+    "BATTERY_STATUS": 0.5,
+}
+"""Telemetry the link needs, with the rates it asks an ArduPilot for."""
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Tuning of a link; defaults suit a companion computer next to a real autopilot."""
+
+    rate_hz: float = 20.0
+    """Setpoint stream rate (wall clock)."""
+    max_speed_xy_mps: float = 2.0
+    """Saturation of the horizontal body velocity (norm)."""
+    max_speed_z_mps: float = 1.0
+    """Saturation of the vertical body velocity."""
+    max_yaw_rate_radps: float = 0.8
+    """Saturation of the yaw rate."""
+    setpoint_timeout_s: float = 0.5
+    """While streaming, a setpoint older than this is replaced by zero velocity (hold)."""
+    stale_after_s: float = 0.5
+    """Attitude/velocity older than this is flagged stale in :class:`Telemetry`."""
+    heartbeat_timeout_s: float = 3.0
+    """A heartbeat older than this means the link is lost."""
+    ack_timeout_s: float = 1.0
+    """Wait this long for a COMMAND_ACK before re-sending the command."""
+    command_sends: int = 3
+    """Sends of one command (the first plus re-sends) before it counts as timed out."""
+    retry_timeout_s: float = 30.0
+    """Refused actions are retried with backoff for at most this long."""
+    backoff_initial_s: float = 0.5
+    backoff_max_s: float = 4.0
+    mode_settle_s: float = 1.0
+    """After a mode change is seen, watch this long for a revert before trusting it."""
+    source_system: int = 245
+    source_component: int = 191
+    """MAV_COMP_ID_ONBOARD_COMPUTER."""
+    system_id: int | None = None
+    """Talk only to this system id (``None``: the first autopilot heard)."""
+    stream_rates_hz: Mapping[str, float] = field(
+        default_factory=lambda: dict(DEFAULT_STREAM_RATES_HZ)
+    )
+    clock: Callable[[], float] = time.monotonic
+    """Wall clock used for ages and timeouts (injected for tests)."""
+
+    def __post_init__(self) -> None:
+        for name in (
+            "rate_hz",
+            "max_speed_xy_mps",
+            "max_speed_z_mps",
+            "max_yaw_rate_radps",
+            "setpoint_timeout_s",
+            "stale_after_s",
+            "heartbeat_timeout_s",
+            "ack_timeout_s",
+            "backoff_initial_s",
+            "backoff_max_s",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        if self.command_sends < 1:
+            raise ValueError(f"command_sends must be >= 1, got {self.command_sends}")
+        if not (math.isfinite(self.retry_timeout_s) and self.retry_timeout_s >= 0.0):
+            raise ValueError(f"retry_timeout_s must be finite and >= 0, got {self.retry_timeout_s}")
+
+
+@dataclass(frozen=True)
+class LinkCounters:
+    """What the link received, dropped and sent since it connected."""
+
+    received: int = 0
+    """Valid messages from the target autopilot."""
+    bad_data: int = 0
+    """Garbage bytes, bad CRCs, unparsable packets (pymavlink ``BAD_DATA``)."""
+    foreign: int = 0
+    """Valid messages from another system or component (dropped)."""
+    invalid_values: int = 0
+    """Messages from the target with NaN/inf where a number was expected (dropped)."""
+    setpoints_sent: int = 0
+    nan_setpoints: int = 0
+    """``set_setpoint`` calls with a NaN/inf component (replaced by zero)."""
+    saturated_setpoints: int = 0
+    stale_setpoints: int = 0
+    """Stream periods where the agent's setpoint was too old and zero was sent instead."""
+    link_errors: int = 0
+    """Socket errors while reading or writing."""
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """One consistent snapshot of what the autopilot reported (never simulator truth)."""
+
+    t_s: float
+    """Link clock when the snapshot was taken."""
+    connected: bool
+    flavour: Flavour | None
+    system_id: int | None
+    t_boot_s: float | None
+    """Autopilot time (``time_boot_ms``) of the latest attitude or position message."""
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    yaw_rate_radps: float
+    v_ned: Vec3
+    v_body: Vec3
+    """Heading-frame velocity ``R_z(yaw)^T v_ned`` (module docstring)."""
+    altitude_m: float
+    """Height above the autopilot's local origin (``-z`` of LOCAL_POSITION_NED)."""
+    mode: str
+    armed: bool
+    landed_state: int
+    """MAV_LANDED_STATE: 0 unknown, 1 on ground, 2 in air, 3 taking off, 4 landing."""
+    ready: bool
+    """Pre-arm checks pass (SYS_STATUS ``MAV_SYS_STATUS_PREARM_CHECK`` healthy)."""
+    battery_remaining_pct: float | None
+    battery_voltage_v: float | None
+    heartbeat_age_s: float
+    attitude_age_s: float
+    velocity_age_s: float
+    stale_heartbeat: bool
+    stale_attitude: bool
+    stale_velocity: bool
+    stream_state: StreamState
+    setpoint_v_body: Vec3
+    """The (saturated) setpoint being streamed."""
+    setpoint_yaw_rate_radps: float
+    counters: LinkCounters
+
+    @property
+    def in_air(self) -> bool:
+        return self.landed_state in (2, 3, 4)
+
+    @property
+    def stale(self) -> bool:
+        """Any input the agent relies on is stale."""
+        return self.stale_heartbeat or self.stale_attitude or self.stale_velocity
+
+
+@dataclass(frozen=True)
+class ActionResult:
+    """How one blocking action ended."""
+
+    action: str
+    ok: bool
+    result: int | None
+    """Last MAV_RESULT received (``None``: no ACK, or the action needs none)."""
+    attempts: int
+    """Commands sent that were answered or timed out (retries included)."""
+    elapsed_s: float
+    reasons: tuple[str, ...] = ()
+    """STATUSTEXT messages the autopilot sent while the action ran (why it refused)."""
+    detail: str = ""
+
+    @property
+    def timed_out(self) -> bool:
+        return not self.ok and self.result is None
+
+    @property
+    def result_name(self) -> str:
+        return result_name(self.result)
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    """Something the agent loop should know about (drained with ``events()``)."""
+
+    t_s: float
+    kind: str
+    """``stream_stopped``, ``mode_changed``, ``armed``, ``disarmed``, ``link_lost``,
+    ``link_restored``, ``mode_reverted``, ``statustext``."""
+    detail: str
+
+
+_RESULT_NAMES = {
+    0: "ACCEPTED",
+    1: "TEMPORARILY_REJECTED",
+    2: "DENIED",
+    3: "UNSUPPORTED",
+    4: "FAILED",
+    5: "IN_PROGRESS",
+    6: "CANCELLED",
+}
+
+
+def result_name(result: int | None) -> str:
+    """MAV_RESULT name (``TIMEOUT`` for ``None``)."""
+    if result is None:
+        return "TIMEOUT"
+    return _RESULT_NAMES.get(result, f"RESULT_{result}")
+
+
+class LinkError(RuntimeError):
+    """The link could not be opened (bad URL, no autopilot heard, unknown autopilot)."""
+
+
+class AutopilotLink(ABC):
+    """What the daemon needs from an autopilot (module docstring)."""
+
+    config: LinkConfig
+
+    @property
+    @abstractmethod
+    def flavour(self) -> Flavour | None: ...
+
+    @property
+    @abstractmethod
+    def target_system(self) -> int | None: ...
+
+    @abstractmethod
+    def connect(self, url: str, timeout_s: float = 10.0) -> None:
+        """Open ``url`` and wait for the autopilot's heartbeat; raises :class:`LinkError`."""
+
+    @abstractmethod
+    def telemetry(self) -> Telemetry: ...
+
+    @abstractmethod
+    def request_streams(self, rates_hz: Mapping[str, float] | None = None) -> ActionResult:
+        """Ask for the telemetry the link needs and wait until it arrives."""
+
+    @abstractmethod
+    def wait_ready(self, timeout_s: float = 60.0) -> ActionResult:
+        """Wait until the pre-arm checks pass (the estimator is ready)."""
+
+    @abstractmethod
+    def set_mode(self, mode: str, timeout_s: float | None = None) -> ActionResult: ...
+
+    @abstractmethod
+    def arm(self, timeout_s: float | None = None) -> ActionResult: ...
+
+    @abstractmethod
+    def takeoff(
+        self, altitude_m: float, wait: bool = True, timeout_s: float | None = None
+    ) -> ActionResult: ...
+
+    @abstractmethod
+    def land(self, wait: bool = False, timeout_s: float | None = None) -> ActionResult: ...
+
+    @abstractmethod
+    def hold(self, timeout_s: float | None = None) -> ActionResult: ...
+
+    @abstractmethod
+    def disarm(self, force: bool = False, timeout_s: float | None = None) -> ActionResult: ...
+
+    @abstractmethod
+    def start_velocity_control(self, timeout_s: float | None = None) -> ActionResult: ...
+
+    @abstractmethod
+    def set_setpoint(self, v_body: Vec3, yaw_rate_radps: float) -> tuple[Vec3, float]:
+        """Store the command to stream; returns it saturated and NaN-free."""
+
+    @abstractmethod
+    def stop_streaming(self, reason: str = "requested") -> None: ...
+
+    @abstractmethod
+    def events(self) -> list[LinkEvent]:
+        """Events since the last call (oldest first)."""
+
+    @abstractmethod
+    def close(self) -> None: ...
+
+    def __enter__(self) -> AutopilotLink:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
