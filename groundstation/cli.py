@@ -11,8 +11,10 @@ from __future__ import annotations
 import typer
 
 from groundstation.check_cli import check
+from groundstation.demo_cli import demo
 from groundstation.plan_cli import plan
 from groundstation.vision_cli import vision_app
+from onboard.daemon.cli import agent
 from sim.cli import sim
 from sim.scenario_cli import scenario
 
@@ -23,7 +25,9 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+app.command("agent")(agent)
 app.command("check")(check)
+app.command("demo")(demo)
 app.command("plan")(plan)
 app.command("scenario")(scenario)
 app.command("sim")(sim)

@@ -1,0 +1,382 @@
+"""``bearingflock demo``: a whole simulated mission on one machine, with no setup.
+
+It plans a formation, starts the MAVLink simulator and one onboard daemon per vehicle as
+separate processes (Zenoh in peer mode on loopback, no router), lets the daemons take off and
+fly paper 000's bearing-constrained active scale estimation, shows a live table, lands
+everything, and reports how fast the team found its metric scale and how well it holds the
+formation, with plots.
+
+The demo is the evaluator: it is the only place that reads the simulator's ground truth
+(``bf/<fleet>/<id>/truth``), to score the agents' estimates. The agents never see it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from messages.agent import VehicleStatus
+from messages.codec import MessageError, decode, encode
+from messages.command import COMMAND_TOPIC, FleetCommand
+from messages.keys import key
+from messages.sim import Truth
+from messages.transport import ZenohSettings, loopback_endpoint, open_session
+from onboard.geometry import FloatArray, IntArray, bearings_body
+from onboard.graph import normalize_edges, reciprocal_pairs
+from onboard.rigidity.bearing import ibr_r3s1
+
+SCALE_TOLERANCE = 0.02
+"""Relative distance error below which an SfM edge counts as having the metric scale."""
+
+
+@dataclass(frozen=True)
+class FormationPlan:
+    """Desired formation, sensing graph and start layout of a demo."""
+
+    p_ned: FloatArray
+    yaw_rad: FloatArray
+    edges: IntArray
+    p_start_ned: FloatArray
+    yaw_start_rad: FloatArray
+
+    @property
+    def n(self) -> int:
+        return len(self.p_ned)
+
+
+def plan_formation(n: int, seed: int = 0) -> FormationPlan:
+    """A ring of ``n`` vehicles at mixed heights, cameras toward the centre, a directed sensing
+    graph with reciprocal pairs ``(2k, 2k+1)`` and chords ``i -> i+1, i+2``, IBR in R^3 x S^1.
+    Vehicles start displaced from it, so the formation controller has work to do."""
+    if n < 3:
+        raise ValueError(f"a demo needs at least 3 vehicles, got {n}")
+    rng = np.random.default_rng(seed)
+    radius = max(4.0, 0.9 * n)
+    ang = 2.0 * np.pi * np.arange(n) / n
+    p = np.stack(
+        [radius * np.cos(ang), radius * np.sin(ang), -5.0 - 1.5 * (np.arange(n) % 3) / 2.0], axis=1
+    )
+    yaw = np.arctan2(-p[:, 1], -p[:, 0])
+    pairs = [(2 * k, 2 * k + 1) for k in range(n // 2)]
+    edges = [e for a, b in pairs for e in ((a, b), (b, a))]
+    edges += [(i, (i + s) % n) for i in range(n) for s in (1, 2)]
+    e = normalize_edges(edges)
+    if not ibr_r3s1(p, yaw, e).is_rigid:
+        e = normalize_edges([(i, j) for i in range(n) for j in range(n) if i != j])
+    offset = rng.uniform(0.6, 1.0, size=n)[:, None] * np.stack(
+        [np.cos(ang + 1.3), np.sin(ang + 1.3), np.zeros(n)], axis=1
+    )
+    return FormationPlan(p, yaw, e, p + offset, yaw + rng.uniform(-0.2, 0.2, size=n))
+
+
+def _formation_toml(p: FloatArray, yaw: FloatArray, edges: IntArray | None, name: str) -> str:
+    lines = [f'name = "{name}"', ""]
+    for k in range(len(p)):
+        lines += [
+            "[[agent]]",
+            f"id = {k}",
+            "position_ned = [" + ", ".join(f"{x:.3f}" for x in p[k]) + "]",
+            f"yaw_deg = {math.degrees(yaw[k]):.2f}",
+            "",
+        ]
+    for i, j in edges if edges is not None else []:
+        lines += ["[[edge]]", f"from = {i}", f"to = {j}", ""]
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class DemoPorts:
+    zenoh: int
+    mavlink: int
+    gcs: int
+
+
+def write_demo_files(
+    out: Path, plan: FormationPlan, ports: DemoPorts, fleet: str, mode: str
+) -> Path:
+    """Formation, start layout and fleet files for the simulator and the daemons."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "formation.toml").write_text(
+        _formation_toml(plan.p_ned, plan.yaw_rad, plan.edges, "demo")
+    )
+    (out / "start.toml").write_text(
+        _formation_toml(plan.p_start_ned, plan.yaw_start_rad, None, "demo-start")
+    )
+    fleet_path = out / "fleet.toml"
+    fleet_path.write_text(
+        "\n".join(
+            [
+                'formation = "formation.toml"',
+                f'fleet = "{fleet}"',
+                f'mode = "{mode}"',
+                'clock = "sim"',
+                "auto_start = true",
+                "takeoff_alt_m = 5.0",
+                "",
+                "[mavlink]",
+                f"port_base = {ports.mavlink}",
+                "",
+                "[zenoh]",
+                f"port_base = {ports.zenoh}",
+                "",
+            ]
+        )
+    )
+    return fleet_path
+
+
+@dataclass
+class Series:
+    """Time series the evaluator records (one row per sample)."""
+
+    t_s: list[float] = field(default_factory=list)
+    p_ned: list[FloatArray] = field(default_factory=list)
+    scale_error: list[FloatArray] = field(default_factory=list)
+    """Per reciprocal pair: ``|1/chihat - d| / d`` (NaN while unknown)."""
+    bearing_error_deg: list[float] = field(default_factory=list)
+    rigidity_eigenvalue: list[float] = field(default_factory=list)
+    flying: list[bool] = field(default_factory=list)
+
+
+class Evaluator:
+    """Listens to every daemon's status and the simulator's truth; scores the estimates."""
+
+    def __init__(self, fleet: str, plan: FormationPlan, settings: ZenohSettings) -> None:
+        self.fleet = fleet
+        self.plan = plan
+        self.pairs = reciprocal_pairs(plan.edges)
+        self.desired_beta, _ = bearings_body(plan.p_ned, plan.yaw_rad, plan.edges)
+        self.session = open_session(settings)
+        self._lock = threading.Lock()
+        self.status: dict[int, VehicleStatus] = {}
+        self.truth: dict[int, Truth] = {}
+        self.bad_samples = 0
+        self.series = Series()
+        self._subs = [
+            self.session.declare_subscriber(f"bf/{fleet}/*/status", self._on_status),
+            self.session.declare_subscriber(f"bf/{fleet}/*/truth", self._on_truth),
+        ]
+
+    def _on_status(self, sample: Any) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), VehicleStatus)
+        except MessageError:
+            self.bad_samples += 1
+            return
+        with self._lock:
+            self.status[msg.sender] = msg
+
+    def _on_truth(self, sample: Any) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), Truth)
+        except MessageError:
+            self.bad_samples += 1
+            return
+        with self._lock:
+            self.truth[msg.sender] = msg
+
+    def command_all(self, action: str) -> None:
+        for agent_id in range(self.plan.n):
+            cmd = FleetCommand(
+                sender=0, target=agent_id, action=action, request_id=int(time.time() * 1e3)
+            )
+            self.session.put(key(self.fleet, agent_id, COMMAND_TOPIC), encode(cmd))
+
+    def sample(self) -> None:
+        """Score the current estimates against the truth and append one row."""
+        with self._lock:
+            if len(self.truth) < self.plan.n:
+                return
+            p = np.array([self.truth[k].p_ned for k in range(self.plan.n)])
+            yaw = np.array([self.truth[k].yaw_rad for k in range(self.plan.n)])
+            t = max(tr.stamp_s for tr in self.truth.values())
+            status = dict(self.status)
+        errors = np.full(len(self.pairs), np.nan)
+        for m, (i, j) in enumerate(self.pairs):
+            st = status.get(int(i))
+            chi = st.agent.chi_hat_inv_m.get(int(j)) if st is not None else None
+            if chi:
+                d = float(np.linalg.norm(p[j] - p[i]))
+                errors[m] = abs(1.0 / chi - d) / d
+        beta, _ = bearings_body(p, yaw, self.plan.edges)
+        cosines = np.clip(np.sum(beta * self.desired_beta, axis=1), -1.0, 1.0)
+        flying = len(status) == self.plan.n and all(s.phase == "flying" for s in status.values())
+        s = self.series
+        s.t_s.append(t)
+        s.p_ned.append(p)
+        s.scale_error.append(errors)
+        s.bearing_error_deg.append(float(np.degrees(np.mean(np.arccos(cosines)))))
+        s.rigidity_eigenvalue.append(ibr_r3s1(p, yaw, self.plan.edges).eigenvalue)
+        s.flying.append(flying)
+
+    def snapshot(self) -> dict[int, VehicleStatus]:
+        with self._lock:
+            return dict(self.status)
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
+    """The demo's summary: time to metric scale, final errors, rigidity, dropped messages."""
+    s = ev.series
+    t = np.array(s.t_s)
+    err = np.array(s.scale_error) if s.scale_error else np.zeros((0, len(ev.pairs)))
+    flying = np.array(s.flying, dtype=bool)
+    start = float(t[np.argmax(flying)]) if flying.any() else None
+    time_to_scale = None
+    if start is not None and len(err):
+        ok = np.all(err < SCALE_TOLERANCE, axis=1) & flying
+        bad_after = np.nonzero(~ok)[0]
+        first_good = bad_after[-1] + 1 if len(bad_after) else 0
+        if first_good < len(t) and t[first_good] >= start:
+            time_to_scale = float(t[first_good] - start)
+    tail = t >= (t[-1] - 2.0) if len(t) else np.zeros(0, dtype=bool)
+    final_scale = float(np.nanmax(np.nanmean(err[tail], axis=0))) if tail.any() else None
+    final_bearing = float(np.mean(np.array(s.bearing_error_deg)[tail])) if tail.any() else None
+    status = ev.snapshot()
+    dropped = sum(sum(st.dropped.values()) for st in status.values())
+    eig = np.array(s.rigidity_eigenvalue)[flying] if flying.any() else np.array([])
+    return {
+        "vehicles": vehicles,
+        "time_to_scale_s": time_to_scale,
+        "final_scale_error": None
+        if final_scale is None or math.isnan(final_scale)
+        else final_scale,
+        "final_bearing_error_deg": final_bearing,
+        "min_rigidity_eigenvalue": float(eig.min()) if len(eig) else None,
+        "dropped_messages": int(dropped),
+        "bad_samples": ev.bad_samples,
+        "mission_start_s": start,
+        "reciprocal_pairs": ev.pairs.tolist(),
+    }
+
+
+class Processes:
+    """The processes a demo started; :meth:`stop` ends every one of them."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.procs: list[tuple[str, subprocess.Popen[bytes]]] = []
+
+    def start(self, name: str, args: list[str]) -> subprocess.Popen[bytes]:
+        log = open(self.log_dir / f"{name}.log", "wb")
+        proc = subprocess.Popen(
+            [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+        )
+        self.procs.append((name, proc))
+        return proc
+
+    def dead(self) -> list[str]:
+        return [name for name, p in self.procs if p.poll() is not None]
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        for _, p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + timeout_s
+        for _, p in self.procs:
+            try:
+                p.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def run_demo(
+    vehicles: int,
+    flavour: str,
+    duration_s: float,
+    out: Path,
+    seed: int = 0,
+    mode: str = "formation-active",
+    on_tick: Callable[[Evaluator, float, str], None] | None = None,
+) -> dict[str, Any]:
+    """Run the whole mission (module docstring) and return its summary."""
+    from sim.server import free_port_base
+
+    base = free_port_base(vehicles + 2, span=60, seed=None)
+    ports = DemoPorts(zenoh=base, mavlink=base + 10 + vehicles, gcs=base + 9)
+    plan = plan_formation(vehicles, seed)
+    fleet = f"demo{base}"
+    fleet_path = write_demo_files(out, plan, ports, fleet, mode)
+    procs = Processes(out)
+    evaluator: Evaluator | None = None
+    try:
+        procs.start(
+            "sim",
+            [
+                "-m", "sim.cli", "--vehicles", str(vehicles), "--flavour", flavour,
+                "--layout", str(out / "start.toml"), "--zenoh", loopback_endpoint(ports.zenoh),
+                "--fleet", fleet, "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
+                "--bind-base", str(ports.mavlink + vehicles + 5),
+                "--camera-fov", "360", "--camera-range", "80", "--seed", str(seed), "--quiet",
+            ],
+        )  # fmt: skip
+        for i in range(vehicles):
+            procs.start(
+                f"agent{i}",
+                ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path)],
+            )
+        evaluator = Evaluator(
+            fleet,
+            plan,
+            ZenohSettings(
+                connect=[loopback_endpoint(ports.zenoh + k) for k in range(vehicles + 1)]
+            ),
+        )
+        t0 = time.monotonic()
+        phase = "mission"
+        while time.monotonic() - t0 < duration_s:
+            time.sleep(0.1)
+            evaluator.sample()
+            if dead := procs.dead():
+                raise RuntimeError(f"process(es) died: {', '.join(dead)} (logs in {out})")
+            if on_tick is not None:
+                on_tick(evaluator, time.monotonic() - t0, phase)
+        summary = summarize(evaluator, vehicles)
+        evaluator.command_all("land")
+        phase = "landing"
+        t_land = time.monotonic()
+        while time.monotonic() - t_land < 15.0:
+            time.sleep(0.2)
+            status = evaluator.snapshot()
+            if status and all(not s.in_air for s in status.values()):
+                break
+            if on_tick is not None:
+                on_tick(evaluator, time.monotonic() - t0, phase)
+        summary["landed"] = all(not s.in_air for s in evaluator.snapshot().values())
+        return summary
+    finally:
+        if evaluator is not None:
+            _save(evaluator, out)
+            evaluator.close()
+        procs.stop()
+
+
+def _save(ev: Evaluator, out: Path) -> None:
+    s = ev.series
+    if not s.t_s:
+        return
+    np.savez_compressed(
+        out / "demo_series.npz",
+        t_s=np.array(s.t_s),
+        p_ned=np.array(s.p_ned),
+        scale_error=np.array(s.scale_error),
+        bearing_error_deg=np.array(s.bearing_error_deg),
+        rigidity_eigenvalue=np.array(s.rigidity_eigenvalue),
+        flying=np.array(s.flying),
+        pairs=ev.pairs,
+        p_desired_ned=ev.plan.p_ned,
+    )

@@ -1,0 +1,77 @@
+"""Bearing sources: where a daemon's body-frame bearings come from.
+
+One interface, :class:`BearingSource`: ``poll()`` returns the bearings of a camera frame not seen
+before, or ``None``. :class:`SimCameraSource` takes the simulator's virtual camera
+(``bf/<fleet>/<id>/camera/bearings``); the camera pipeline (``onboard.vision``) plugs in behind
+the same interface.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import Any, Protocol
+
+from messages.agent import BearingMeasurement
+from messages.codec import MessageError, decode
+from messages.sim import CameraBearings, camera_key
+from onboard.daemon.peers import DropCounter, PeerLink
+
+
+class BearingSource(Protocol):
+    def poll(self) -> tuple[BearingMeasurement, ...] | None:
+        """Bearings of the newest frame not returned before, or ``None``."""
+        ...
+
+    def age_s(self, now_s: float) -> float:
+        """Time since the newest frame was captured (inf before the first)."""
+        ...
+
+
+class SimCameraSource:
+    """The simulator's virtual camera over Zenoh; stamps are simulation time, so use it with the
+    daemon's ``clock = "sim"``. Targets outside the fleet are counted and dropped."""
+
+    def __init__(self, link: PeerLink, drops: DropCounter) -> None:
+        self.id = link.id
+        self.known = link.known
+        self.drops = drops
+        self._lock = threading.Lock()
+        self._frame: tuple[BearingMeasurement, ...] | None = None
+        self._new = False
+        self._stamp = -math.inf
+        link.subscribe(camera_key(link.fleet, link.id), self._on_sample)
+
+    def _on_sample(self, sample: Any) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), CameraBearings)
+        except MessageError as exc:
+            self.drops.drop(f"camera_{exc.reason}", exc.detail)
+            return
+        if msg.sender != self.id or len(msg.targets) != len(msg.beta_body):
+            self.drops.drop("camera_malformed", f"frame from {msg.sender}")
+            return
+        frame = []
+        for target, beta in zip(msg.targets, msg.beta_body, strict=True):
+            norm = math.sqrt(sum(b * b for b in beta))
+            if target not in self.known or target == self.id:
+                self.drops.drop("camera_unknown_target", f"target {target}")
+            elif abs(norm - 1.0) > 1e-3:
+                self.drops.drop("camera_not_unit", f"|beta| = {norm}")
+            else:
+                frame.append(BearingMeasurement(target=target, beta_body=beta, stamp_s=msg.stamp_s))
+        with self._lock:
+            if msg.stamp_s <= self._stamp:
+                return
+            self._frame, self._new, self._stamp = tuple(frame), True, msg.stamp_s
+
+    def poll(self) -> tuple[BearingMeasurement, ...] | None:
+        with self._lock:
+            if not self._new:
+                return None
+            self._new = False
+            return self._frame
+
+    def age_s(self, now_s: float) -> float:
+        with self._lock:
+            return now_s - self._stamp

@@ -1,0 +1,161 @@
+"""Fleet configuration: one TOML file every agent daemon of a fleet reads.
+
+::
+
+    fleet = "alpha"                   # Zenoh key prefix bf/alpha/...
+    formation = "formation.toml"      # the `check` format, relative to this file: agent ids
+                                      # 0..N-1, the planned (desired) formation, sensing edges
+    mode = "formation-active"         # agent core mode: active, random, formation,
+                                      # formation-active, hold
+    clock = "wall"                    # "wall" (real flights) or "sim" (follow the simulator)
+    auto_start = false                # arm, take off and start without the ground station
+    takeoff_alt_m = 5.0
+    prior_scale = 0.6                 # initial localization guess = planned positions x this
+    on_exit = "hold"                  # on SIGINT/SIGTERM: "hold" or "land"
+
+    [rates]                           # Hz
+    core = 100.0                      # agent core ticks (integrated in sub-steps of <= 5 ms)
+    publish = 50.0                    # peer messages (latest of each kind)
+    status = 5.0                      # VehicleStatus for the ground station
+    setpoint = 20.0                   # MAVLink setpoint stream
+
+    [limits]
+    max_speed_m_s = 2.0
+    max_yaw_rate_rad_s = 0.8
+    stale_s = 0.5                     # inputs older than this -> hold
+
+    [mavlink]
+    backend = "pymavlink"             # or "mavsdk"
+    url = "udpin:127.0.0.1:{port}"    # {port} = port_base + id, {id} = agent id
+    port_base = 14540
+
+    [zenoh]
+    mode = "peer"                     # or "client" with a router in connect
+    port_base = 7447                  # agent i listens on port_base + 1 + i; the simulator on port_base
+    connect = []                      # extra endpoints (a router, remote peers)
+    config_file = ""                  # a full Zenoh JSON5 config (TLS...), overrides the above
+
+Agent ids are the vehicle indices ``0..N-1`` (MAVLink system id = id + 1, PX4 SITL port
+14540 + id), as in ``shared/design.md``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import msgspec
+
+from messages.formation import Formation, FormationError, load_formation
+
+Mode = Literal["active", "random", "formation", "formation-active", "hold"]
+
+
+class ConfigError(ValueError):
+    """An invalid fleet configuration; the message names the problem and its place."""
+
+
+class Rates(msgspec.Struct, forbid_unknown_fields=True):
+    core: float = 100.0
+    publish: float = 50.0
+    status: float = 5.0
+    setpoint: float = 20.0
+
+
+class Limits(msgspec.Struct, forbid_unknown_fields=True):
+    max_speed_m_s: float = 2.0
+    max_yaw_rate_rad_s: float = 0.8
+    stale_s: float = 0.5
+
+
+class MavlinkSettings(msgspec.Struct, forbid_unknown_fields=True):
+    backend: Literal["pymavlink", "mavsdk"] = "pymavlink"
+    url: str = "udpin:127.0.0.1:{port}"
+    port_base: int = 14540
+
+
+class ZenohSection(msgspec.Struct, forbid_unknown_fields=True):
+    mode: Literal["peer", "client"] = "peer"
+    port_base: int = 7447
+    connect: list[str] = msgspec.field(default_factory=list)
+    config_file: str = ""
+
+
+class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
+    formation: str
+    fleet: str = "alpha"
+    mode: Mode = "formation-active"
+    clock: Literal["wall", "sim"] = "wall"
+    auto_start: bool = False
+    takeoff_alt_m: float = 5.0
+    prior_scale: float = 0.6
+    on_exit: Literal["hold", "land"] = "hold"
+    rates: Rates = msgspec.field(default_factory=Rates)
+    limits: Limits = msgspec.field(default_factory=Limits)
+    mavlink: MavlinkSettings = msgspec.field(default_factory=MavlinkSettings)
+    zenoh: ZenohSection = msgspec.field(default_factory=ZenohSection)
+
+
+class Fleet(msgspec.Struct, frozen=True):
+    """A validated fleet: the parsed file and its formation."""
+
+    config: FleetConfig
+    formation: Formation
+    path: str
+
+    @property
+    def n(self) -> int:
+        return self.formation.n
+
+    def mavlink_url(self, agent_id: int) -> str:
+        m = self.config.mavlink
+        return m.url.format(port=m.port_base + agent_id, id=agent_id)
+
+    def zenoh_port(self, agent_id: int) -> int:
+        return self.config.zenoh.port_base + 1 + agent_id
+
+    def sim_zenoh_port(self) -> int:
+        return self.config.zenoh.port_base
+
+
+def load_fleet(path: str | Path) -> Fleet:
+    """Read and validate a fleet file and the formation it names."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read file ({exc.strerror})") from None
+    try:
+        config = msgspec.toml.decode(raw, type=FleetConfig)
+    except msgspec.ValidationError as exc:
+        msg = str(exc)
+        if " - at `$." in msg:
+            what, where = msg.rsplit(" - at `$.", 1)
+            msg = f"{where.rstrip('`')}: {what}"
+        raise ConfigError(f"{path}: {msg}") from None
+    except msgspec.DecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+    for name, value in msgspec.structs.asdict(config.rates).items():
+        if not value > 0.0:
+            raise ConfigError(f"{path}: rates.{name}: must be > 0, got {value}")
+    if config.rates.core < config.rates.publish:
+        raise ConfigError(f"{path}: rates.core must be >= rates.publish")
+    for name, value in msgspec.structs.asdict(config.limits).items():
+        if not value > 0.0:
+            raise ConfigError(f"{path}: limits.{name}: must be > 0, got {value}")
+    if not 0.0 < config.prior_scale <= 10.0:
+        raise ConfigError(f"{path}: prior_scale: must be in (0, 10], got {config.prior_scale}")
+    if not 0.5 <= config.takeoff_alt_m <= 100.0:
+        raise ConfigError(
+            f"{path}: takeoff_alt_m: must be in [0.5, 100], got {config.takeoff_alt_m}"
+        )
+    try:
+        formation = load_formation(path.parent / config.formation)
+    except FormationError as exc:
+        raise ConfigError(f"{path}: formation: {exc}") from None
+    if sorted(formation.ids.tolist()) != list(range(formation.n)):
+        raise ConfigError(
+            f"{path}: formation: agent ids must be 0..{formation.n - 1} (vehicle indices), "
+            f"got {formation.ids.tolist()}"
+        )
+    return Fleet(config=config, formation=formation, path=str(path))

@@ -1,0 +1,387 @@
+"""The onboard daemon: one agent core driven by an autopilot link, a bearing source and peers.
+
+Two threads. The **core loop** (the caller's thread) steps the agent core at ``rates.core`` on
+the daemon's clock, feeds it only what the vehicle measures (autopilot attitude and body
+velocity, its own bearings) and what peers send, publishes its peer messages at
+``rates.publish`` and its status at ``rates.status``, and hands the setpoint to the link, which
+streams it at ``rates.setpoint``. The **flight thread** runs the slow, blocking autopilot
+actions (connect, wait for the estimator, arm, take off, enter OFFBOARD/GUIDED, land) so the
+core never stalls behind them.
+
+Safety (shared/design.md): setpoints are saturated by the link; stale inputs (autopilot
+telemetry, bearings, the clock) or a sensing graph that is no longer rigid after a peer was lost
+give zero velocity (hold); a pilot who takes the vehicle out of OFFBOARD/GUIDED gets it, since
+the link stops streaming; SIGINT/SIGTERM hold, then exit (or land, if configured).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import msgspec
+import numpy as np
+
+from messages.agent import OwnMeasurements, Setpoint, VehicleStatus
+from messages.codec import Payload
+from messages.command import FleetCommand
+from onboard.agent import AgentConfig, AgentCore
+from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
+from onboard.daemon.bearings import BearingSource
+from onboard.daemon.clock import Clock
+from onboard.daemon.config import Fleet
+from onboard.daemon.peers import DropCounter, PeerLink
+from onboard.geometry import bearings_body
+from onboard.graph import formation_edges
+from onboard.rigidity.bearing import ibr_r3s1
+
+log = logging.getLogger(__name__)
+
+PHASES = ("connecting", "waiting", "ready", "flying", "holding", "pilot", "landing", "stopped")
+MAX_CORE_DT_S = 0.005
+"""Longest integration step given to the core (its gains want <= 5 ms, see sim/runner.py)."""
+MAX_GAP_S = 0.5
+"""A longer gap between two ticks is skipped rather than integrated."""
+PEER_LOST_HOLD_S = 2.0
+"""A peer without a liveliness token for this long is out of the graph."""
+
+
+def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
+    """The core's configuration from the fleet file: graph, planned formation, scaled prior.
+
+    The localization prior is the *planned* formation scaled by ``prior_scale`` about its
+    centroid (bearings carry no scale: the estimators must find it), never the simulator's truth.
+    """
+    f, c = fleet.formation, fleet.config
+    e = formation_edges(f)
+    beta, _ = bearings_body(f.p_ned, f.yaw_rad, e)
+    centroid = f.p_ned.mean(axis=0)
+    prior = centroid + c.prior_scale * (f.p_ned - centroid)
+    return AgentConfig(
+        agent_id=agent_id,
+        n_agents=f.n,
+        edges=tuple((int(i), int(j)) for i, j in e),
+        mode=c.mode,
+        p_hat0_ned=tuple(tuple(float(x) for x in row) for row in prior),
+        yaw_hat0_rad=tuple(float(y) for y in f.yaw_rad),
+        desired_beta_body=tuple(
+            (int(i), int(j), (float(b[0]), float(b[1]), float(b[2])))
+            for (i, j), b in zip(e, beta, strict=True)
+        ),
+        desired_yaw_rad=tuple(float(y) for y in f.yaw_rad),
+        v_max_m_s=c.limits.max_speed_m_s,
+        yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s,
+    )
+
+
+@dataclass
+class DaemonState:
+    """What the two threads share (guarded by ``lock``)."""
+
+    phase: str = "connecting"
+    detail: str = ""
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def set(self, phase: str, detail: str = "") -> None:
+        with self.lock:
+            if phase != self.phase:
+                log.info("phase %s -> %s %s", self.phase, phase, detail)
+            self.phase, self.detail = phase, detail
+
+    def get(self) -> str:
+        with self.lock:
+            return self.phase
+
+
+class AgentDaemon:
+    """One vehicle's daemon (module docstring). Build it, then call :meth:`run`."""
+
+    def __init__(
+        self,
+        fleet: Fleet,
+        agent_id: int,
+        link: AutopilotLink,
+        peers: PeerLink,
+        bearings: BearingSource,
+        clock: Clock,
+        drops: DropCounter,
+        mavlink_url: str,
+        on_status: Callable[[VehicleStatus], None] | None = None,
+    ) -> None:
+        self.fleet = fleet
+        self.id = agent_id
+        self.link = link
+        self.peers = peers
+        self.bearings = bearings
+        self.clock = clock
+        self.drops = drops
+        self.url = mavlink_url
+        self.on_status = on_status
+        self.core = AgentCore(agent_config(fleet, agent_id))
+        self.state = DaemonState()
+        self.stop_event = threading.Event()
+        self._landing = threading.Event()
+        self._actions: queue.Queue[tuple[str, FleetCommand | None]] = queue.Queue()
+        self._graph_ids = sorted({int(x) for e in self.core.config.edges for x in e})
+        self._neighbours = frozenset(self.core.neighbours)
+        self._last_core_t: float | None = None
+        self._seen: set[int] = set()
+        self._lost_since: dict[int, float] = {}
+        self._rigid_cache: dict[frozenset[int], bool] = {}
+        self._alarms: list[str] = []
+        self._status_seq = 0
+
+    # ------------------------------------------------------------------ flight thread
+    def _flight(self) -> None:
+        c = self.fleet.config
+        while not self.stop_event.is_set():
+            try:
+                self.link.connect(self.url, timeout_s=5.0)
+                break
+            except LinkError as exc:
+                self.state.set("connecting", str(exc))
+                self.stop_event.wait(1.0)
+        if self.stop_event.is_set():
+            return
+        self.state.set("waiting", "estimator warm-up")
+        self.link.request_streams()
+        while not self.stop_event.is_set():
+            ready = self.link.wait_ready(timeout_s=5.0)
+            if ready.ok:
+                break
+            self.state.set("waiting", "; ".join(ready.reasons) or ready.detail)
+        self.state.set("ready")
+        if c.auto_start:
+            self._actions.put(("takeoff_and_start", None))
+        while not self.stop_event.is_set():
+            try:
+                action, cmd = self._actions.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            ok, detail = self._do(action)
+            if cmd is not None:
+                self.peers.ack(cmd, ok, detail, self._now() or 0.0)
+
+    def _do(self, action: str) -> tuple[bool, str]:
+        """Run one blocking action on the autopilot; returns (accepted, detail)."""
+        link, c = self.link, self.fleet.config
+        if action in ("takeoff_and_start", "start") and self._landing.is_set():
+            return False, "a land or stop command came first: not starting"
+        if action == "takeoff_and_start" and link.telemetry().in_air:
+            action = "start"  # a restarted daemon rejoins a vehicle that is already flying
+        if action == "takeoff_and_start":
+            for step in (link.arm, lambda: link.takeoff(c.takeoff_alt_m, wait=True)):
+                result = step()
+                if not result.ok:
+                    detail = f"{result.action}: {result.result_name} {'; '.join(result.reasons)}"
+                    self.state.set("ready", detail)
+                    return False, detail
+            action = "start"
+        if action == "start":
+            if not link.telemetry().in_air:
+                return False, "not in the air: arm and take off first"
+            link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            result = link.start_velocity_control()
+            if not result.ok:
+                return False, f"velocity control refused: {result.result_name} {result.detail}"
+            self.state.set("flying")
+            return True, "flying"
+        if action == "hold":
+            link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            self.state.set("holding")
+            return True, "holding"
+        if action in ("land", "stop"):
+            link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            self.state.set("landing")
+            result = link.land()
+            link.stop_streaming("landing")
+            return result.ok, f"land: {result.result_name}"
+        return False, f"unknown action {action!r}"
+
+    # ------------------------------------------------------------------ core loop
+    def _now(self) -> float | None:
+        return self.clock.now()
+
+    def _handle_commands(self) -> None:
+        for cmd in self.peers.commands():
+            if cmd.action in ("land", "stop"):
+                self._landing.set()  # sticky: no auto-start or start after it
+            if cmd.action == "hold" or cmd.action == "stop":
+                # act at once on the setpoint, then let the flight thread do the rest
+                self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+                if cmd.action == "hold":
+                    self.state.set("holding")
+            self._actions.put((cmd.action, cmd))
+
+    def _update_peers(self, now_s: float) -> None:
+        alive = self.peers.alive_peers()
+        self._seen |= alive
+        for j in self._graph_ids:
+            if j == self.id or j not in self._seen:
+                continue
+            if j in alive:
+                self._lost_since.pop(j, None)
+            else:
+                self._lost_since.setdefault(j, now_s)
+
+    def lost_peers(self, now_s: float) -> list[int]:
+        """Peers that were seen and have been without a liveliness token for 2 s or more."""
+        return sorted(j for j, t in self._lost_since.items() if now_s - t >= PEER_LOST_HOLD_S)
+
+    def _rigid_without(self, lost: list[int]) -> bool:
+        """Is the planned framework still IBR in R^3 x S^1 among the agents that remain?"""
+        key = frozenset(lost)
+        if key not in self._rigid_cache:
+            keep = [k for k in range(self.fleet.n) if k not in key]
+            idx = {k: m for m, k in enumerate(keep)}
+            edges = np.array(
+                [(idx[i], idx[j]) for i, j in self.core.config.edges if i in idx and j in idx],
+                dtype=np.int64,
+            ).reshape(-1, 2)
+            f = self.fleet.formation
+            self._rigid_cache[key] = bool(
+                len(edges)
+                and len(keep) >= 2
+                and ibr_r3s1(f.p_ned[keep], f.yaw_rad[keep], edges).is_rigid
+            )
+        return self._rigid_cache[key]
+
+    def _measurements(self, now_s: float, tel: Telemetry) -> OwnMeasurements:
+        frame = self.bearings.poll()
+        return OwnMeasurements(
+            t_s=now_s,
+            yaw_rad=tel.yaw_rad,
+            v_body=tel.v_body,
+            yaw_rate_rad_s=tel.yaw_rate_radps,
+            bearings=frame or (),
+        )
+
+    def _status(self, now_s: float, tel: Telemetry) -> VehicleStatus:
+        self._status_seq += 1
+        dropped = dict(self.drops.snapshot())
+        for reason, count in self.core.dropped.items():
+            dropped[f"core_{reason}"] = count
+        speed = math.sqrt(sum(v * v for v in tel.v_ned))
+        return VehicleStatus(
+            sender=self.id,
+            seq=self._status_seq,
+            stamp_s=now_s,
+            agent=self.core.status(),
+            autopilot_mode=tel.mode,
+            armed=tel.armed,
+            in_air=tel.in_air,
+            altitude_m=tel.altitude_m if math.isfinite(tel.altitude_m) else 0.0,
+            speed_m_s=speed if math.isfinite(speed) else 0.0,
+            battery_pct=tel.battery_remaining_pct,
+            heartbeat_age_s=min(tel.heartbeat_age_s, 1e6),
+            phase=self.state.get(),
+            alarms=list(self._alarms),
+            dropped=dropped,
+        )
+
+    def run(self) -> None:
+        """Run until :attr:`stop_event` is set; then hold (or land) and return."""
+        c = self.fleet.config
+        flight = threading.Thread(target=self._flight, name=f"flight-{self.id}", daemon=True)
+        flight.start()
+        period = 1.0 / c.rates.core
+        publish_every = max(1, round(c.rates.core / c.rates.publish))
+        status_every = max(1, round(c.rates.core / c.rates.status))
+        outbox = []
+        step = 0
+        next_tick = time.monotonic()
+        while not self.stop_event.is_set():
+            next_tick += period
+            delay = next_tick - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_tick = time.monotonic()  # overrun: do not try to catch up
+            now_s = self._now()
+            tel = self.link.telemetry()
+            if now_s is None or not tel.connected:
+                continue
+            self._handle_commands()
+            self._update_peers(now_s)
+            setpoint, out = self._step_core(now_s, tel)
+            outbox.extend(out)
+            step += 1
+            if step % publish_every == 0:
+                self.peers.publish(outbox)
+                outbox = []
+            self._alarms = self._fly(now_s, tel, setpoint)
+            if step % status_every == 0:
+                status = self._status(now_s, tel)
+                self.peers.publish_status(status)
+                if self.on_status is not None:
+                    self.on_status(status)
+        self._shutdown()
+
+    def _step_core(self, now_s: float, tel: Telemetry) -> tuple[Setpoint, list[Payload]]:
+        """Step the core to ``now_s`` in sub-steps of at most :data:`MAX_CORE_DT_S`.
+
+        The core integrates its estimators explicitly with the step's ``dt``; a late tick (a
+        loaded machine, a stalled clock) must not become one long, unstable Euler step. Longer
+        gaps than :data:`MAX_GAP_S` are not integrated: the core jumps (and will re-converge).
+        """
+        own = self._measurements(now_s, tel)
+        inbox = self.peers.drain(self._neighbours)
+        last = self._last_core_t
+        self._last_core_t = now_s
+        out: list[Payload] = []
+        if last is not None and MAX_CORE_DT_S < now_s - last <= MAX_GAP_S:
+            n = math.ceil((now_s - last) / MAX_CORE_DT_S)
+            quiet = msgspec.structs.replace(own, bearings=())
+            for k in range(1, n):
+                t_k = last + (now_s - last) * k / n
+                _, early = self.core.step(t_k, msgspec.structs.replace(quiet, t_s=t_k), ())
+                out.extend(early)
+        setpoint, last_out = self.core.step(now_s, own, inbox)
+        out.extend(last_out)
+        return setpoint, out
+
+    def _fly(self, now_s: float, tel: Telemetry, setpoint) -> list[str]:
+        """Send the setpoint, or zero when unsafe; return the active alarms."""
+        c = self.fleet.config
+        alarms = []
+        lost = self.lost_peers(now_s)
+        alarms += [f"peer_lost:{j}" for j in lost]
+        if lost and not self._rigid_without(lost):
+            alarms.append("rigidity_lost")
+        if tel.stale:
+            alarms.append("autopilot_stale")
+        if self.bearings.age_s(now_s) > c.limits.stale_s:
+            alarms.append("bearings_stale")
+        for event in self.link.events():
+            if event.kind == "stream_stopped" and self.state.get() == "flying":
+                self.state.set("pilot", event.detail)
+        phase = self.state.get()
+        if phase == "pilot":
+            alarms.append("failsafe")
+        finite = all(math.isfinite(x) for x in (*setpoint.v_body, setpoint.yaw_rate_rad_s))
+        if not finite:
+            alarms.append("estimate_diverging")
+        if phase == "flying":
+            safe = finite and not (
+                tel.stale or "rigidity_lost" in alarms or "bearings_stale" in alarms
+            )
+            if safe:
+                self.link.set_setpoint(setpoint.v_body, setpoint.yaw_rate_rad_s)
+            else:
+                self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+        return alarms
+
+    def _shutdown(self) -> None:
+        c = self.fleet.config
+        if self.state.get() in ("flying", "holding"):
+            self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            time.sleep(0.3)
+            if c.on_exit == "land":
+                self.link.land()
+            self.link.stop_streaming("daemon exit")
+        self.state.set("stopped")

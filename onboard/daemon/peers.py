@@ -1,0 +1,206 @@
+"""The peer link: one Zenoh session per daemon, and everything the daemon says and hears on it.
+
+Keys (``messages.keys``): peer payloads on ``bf/<fleet>/<id>/peer/<kind>``, a liveliness token
+``bf/<fleet>/<id>/alive``, the status for the ground station on ``bf/<fleet>/<id>/status``,
+commands on ``bf/<fleet>/<id>/command`` (answered on ``.../command/ack``). Zenoh calls back on
+its own threads; the link queues what arrives and the agent loop drains it.
+
+Bad input never reaches the agent core: every sample is decoded and validated
+(``messages.codec``), its sender must be a fleet member and match the key it came on, and a
+failure is counted by reason and logged once per reason (shared/design.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import Counter, deque
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from messages.codec import MessageError, Payload, decode, encode
+from messages.command import ACK_TOPIC, COMMAND_TOPIC, CommandAck, FleetCommand
+from messages.keys import PEER_TOPIC, STATUS_TOPIC, alive_key, key, parse_key
+from messages.peer import PeerPayload
+from messages.transport import ZenohSettings, open_session
+
+log = logging.getLogger(__name__)
+
+
+class DropCounter:
+    """Thread-safe counters of dropped input by reason; each reason is logged once."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._counts: Counter[str] = Counter()
+
+    def drop(self, reason: str, detail: str = "") -> None:
+        with self._lock:
+            first = self._counts[reason] == 0
+            self._counts[reason] += 1
+        if first:
+            log.warning("dropping input (%s): %s (logged once per reason)", reason, detail)
+
+    def snapshot(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._counts)
+
+    @property
+    def total(self) -> int:
+        with self._lock:
+            return sum(self._counts.values())
+
+
+class PeerLink:
+    """Zenoh I/O of one agent (module docstring). ``known`` are the fleet's agent ids."""
+
+    def __init__(
+        self,
+        fleet: str,
+        agent_id: int,
+        known: Iterable[int],
+        settings: ZenohSettings,
+        drops: DropCounter,
+    ) -> None:
+        self.fleet = fleet
+        self.id = agent_id
+        self.known = frozenset(known)
+        self.drops = drops
+        self.session = open_session(settings)
+        self._lock = threading.Lock()
+        self._inbox: deque[Payload] = deque(maxlen=10_000)
+        self._commands: deque[FleetCommand] = deque(maxlen=100)
+        self._alive: set[int] = set()
+        self._handles: list[Any] = []
+        self._publishers: dict[str, Any] = {}
+        self._ack_seq = 0
+        self._token = self.session.liveliness().declare_token(alive_key(fleet, agent_id))
+        self._handles.append(
+            self.session.declare_subscriber(f"bf/{fleet}/*/{PEER_TOPIC}/**", self._on_peer)
+        )
+        self._handles.append(
+            self.session.declare_subscriber(key(fleet, agent_id, COMMAND_TOPIC), self._on_command)
+        )
+        self._handles.append(
+            self.session.liveliness().declare_subscriber(
+                f"bf/{fleet}/*/alive", self._on_alive, history=True
+            )
+        )
+
+    # ------------------------------------------------------------------ subscriptions
+    def subscribe(self, key_expr: str, handler: Callable[[Any], None]) -> None:
+        """Extra subscription on this session (bearing sources, the simulator's clock)."""
+        self._handles.append(self.session.declare_subscriber(key_expr, handler))
+
+    def _on_peer(self, sample: Any) -> None:
+        try:
+            _, key_id, _ = parse_key(str(sample.key_expr))
+        except ValueError as exc:
+            self.drops.drop("bad_key", str(exc))
+            return
+        if key_id == self.id:
+            return  # our own publication, echoed back by the session
+        try:
+            msg = decode(sample.payload.to_bytes(), PeerPayload, known_senders=self.known)
+        except MessageError as exc:
+            self.drops.drop(exc.reason, f"{sample.key_expr}: {exc.detail}")
+            return
+        if msg.sender != key_id:
+            self.drops.drop("sender_mismatch", f"{sample.key_expr}: sender {msg.sender}")
+            return
+        with self._lock:
+            self._inbox.append(msg)
+
+    def _on_command(self, sample: Any) -> None:
+        try:
+            cmd = decode(sample.payload.to_bytes(), FleetCommand)
+        except MessageError as exc:
+            self.drops.drop(f"command_{exc.reason}", exc.detail)
+            return
+        if cmd.target != self.id:
+            self.drops.drop("command_foreign", f"command for agent {cmd.target}")
+            return
+        with self._lock:
+            self._commands.append(cmd)
+
+    def _on_alive(self, sample: Any) -> None:
+        try:
+            _, agent_id, _ = parse_key(str(sample.key_expr))
+        except ValueError:
+            return
+        with self._lock:
+            if str(sample.kind).endswith("PUT"):
+                self._alive.add(agent_id)
+            else:
+                self._alive.discard(agent_id)
+
+    # ------------------------------------------------------------------ the loop's side
+    def drain(self, senders: frozenset[int] | set[int] | None = None) -> list[Payload]:
+        """Everything received since the last call, oldest first (only from ``senders``)."""
+        with self._lock:
+            out = list(self._inbox)
+            self._inbox.clear()
+        if senders is None:
+            return out
+        return [m for m in out if m.sender in senders]
+
+    def commands(self) -> list[FleetCommand]:
+        with self._lock:
+            out = list(self._commands)
+            self._commands.clear()
+        return out
+
+    def alive_peers(self) -> set[int]:
+        """Agents (other than this one) whose liveliness token is present."""
+        with self._lock:
+            return {a for a in self._alive if a != self.id and a in self.known}
+
+    def publish(self, payloads: Iterable[Payload]) -> int:
+        """Publish peer payloads, keeping only the newest of each kind; returns how many."""
+        latest: dict[str, Payload] = {}
+        for p in payloads:
+            latest[type(p).__struct_config__.tag] = p  # type: ignore[attr-defined]
+        sent = 0
+        for tag, p in latest.items():
+            kind = tag.removeprefix("peer.")
+            try:
+                data = encode(p)
+            except MessageError as exc:  # never send a non-finite estimate to the fleet
+                self.drops.drop(f"own_{exc.reason}", f"{tag}: {exc.detail}")
+                continue
+            self._put(key(self.fleet, self.id, f"{PEER_TOPIC}/{kind}"), data)
+            sent += 1
+        return sent
+
+    def publish_status(self, status: Payload) -> None:
+        try:
+            data = encode(status)
+        except MessageError as exc:
+            self.drops.drop(f"own_status_{exc.reason}", exc.detail)
+            return
+        self._put(key(self.fleet, self.id, STATUS_TOPIC), data)
+
+    def ack(self, cmd: FleetCommand, accepted: bool, detail: str, stamp_s: float) -> None:
+        self._ack_seq += 1
+        ack = CommandAck(
+            sender=self.id,
+            seq=self._ack_seq,
+            stamp_s=stamp_s,
+            request_id=cmd.request_id,
+            action=cmd.action,
+            accepted=accepted,
+            detail=detail,
+        )
+        self._put(key(self.fleet, self.id, ACK_TOPIC), encode(ack))
+
+    def _put(self, key_expr: str, data: bytes) -> None:
+        pub = self._publishers.get(key_expr)
+        if pub is None:
+            pub = self._publishers[key_expr] = self.session.declare_publisher(key_expr)
+        pub.put(data)
+
+    def close(self) -> None:
+        try:
+            self._token.undeclare()
+        finally:
+            self.session.close()

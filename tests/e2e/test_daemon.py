@@ -1,0 +1,136 @@
+"""The onboard daemon end to end: the simulator and three daemons as processes, real UDP
+MAVLink, real Zenoh on loopback. Faults: malformed peer payloads and MAVLink garbage are
+counted and dropped; a killed agent is noticed by its peers and its autopilot fails safe; a
+restarted agent rejoins; a land command brings everyone down."""
+
+from __future__ import annotations
+
+import socket
+import time
+from pathlib import Path
+
+import msgspec
+import pytest
+from pymavlink import mavutil
+
+from groundstation.demo import DemoPorts, Evaluator, Processes, plan_formation, write_demo_files
+from messages.transport import ZenohSettings, loopback_endpoint
+from sim.server import free_port_base
+
+pytestmark = pytest.mark.e2e
+N = 3
+
+
+def wait_for(predicate, timeout_s: float, what: str, ev: Evaluator | None = None) -> float:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout_s:
+        if predicate():
+            return time.monotonic() - t0
+        time.sleep(0.1)
+    state = (
+        {k: (s.phase, s.autopilot_mode, s.alarms) for k, s in ev.snapshot().items()} if ev else {}
+    )
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; status {state}")
+
+
+@pytest.fixture
+def fleet(tmp_path: Path):
+    base = free_port_base(N + 2, span=60)
+    ports = DemoPorts(zenoh=base, mavlink=base + 10 + N, gcs=base + 9)
+    plan = plan_formation(N, seed=1)
+    name = f"t{base}"
+    fleet_path = write_demo_files(tmp_path, plan, ports, name, "formation-active")
+    procs = Processes(tmp_path)
+    procs.start(
+        "sim",
+        [
+            "-m", "sim.cli", "--vehicles", str(N), "--layout", str(tmp_path / "start.toml"),
+            "--zenoh", loopback_endpoint(ports.zenoh), "--fleet", name,
+            "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
+            "--bind-base", str(ports.mavlink + N + 5), "--camera-fov", "360", "--quiet",
+        ],
+    )  # fmt: skip
+    agent_args = {
+        i: ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path)]
+        for i in range(N)
+    }
+    for i, args in agent_args.items():
+        procs.start(f"agent{i}", args)
+    ev = Evaluator(
+        name,
+        plan,
+        ZenohSettings(connect=[loopback_endpoint(ports.zenoh + k) for k in range(N + 1)]),
+    )
+    try:
+        yield ev, procs, ports, agent_args, name
+    finally:
+        ev.close()
+        procs.stop()
+
+
+def test_daemons_fly_survive_bad_input_and_faults(fleet):
+    ev, procs, ports, agent_args, name = fleet
+    gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{ports.gcs}", source_system=250)
+
+    def all_flying() -> bool:
+        st = ev.snapshot()
+        return len(st) == N and all(
+            s.phase == "flying" and s.autopilot_mode == "OFFBOARD" and s.in_air for s in st.values()
+        )
+
+    wait_for(all_flying, 60.0, "every daemon flying in OFFBOARD", ev)
+
+    # bad input on the peer keys and on an agent's MAVLink port
+    bad = [
+        (f"bf/{name}/1/peer/motion", b"\xc1 not msgpack"),
+        (f"bf/{name}/1/peer/motion", msgspec.msgpack.encode(
+            {"type": "peer.motion", "sender": 1, "v_body": [float("nan"), 0.0, 0.0],
+             "yaw_rate_rad_s": 0.0, "yaw_rad": 0.0})),
+        (f"bf/{name}/9/peer/motion", msgspec.msgpack.encode(
+            {"type": "peer.motion", "sender": 9, "v_body": [0.0, 0.0, 0.0],
+             "yaw_rate_rad_s": 0.0, "yaw_rad": 0.0})),
+    ]  # fmt: skip
+    for k, data in bad:
+        ev.session.put(k, data)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.sendto(b"\xfd\x09garbage-bytes", ("127.0.0.1", ports.mavlink + 0))
+
+    def counted() -> bool:
+        d = ev.snapshot()[0].dropped
+        return (
+            d.get("malformed", 0) >= 1
+            and d.get("nonfinite", 0) >= 1
+            and d.get("unknown_sender", 0) >= 1
+        )
+
+    wait_for(counted, 5.0, "agent 0 to count the three bad payloads", ev)
+    assert not procs.dead()
+
+    # kill agent 2: its peers notice within 2 s (+ status period), its autopilot fails safe
+    victim = dict(procs.procs)["agent2"]
+    victim.kill()
+    t_kill = time.monotonic()
+    noticed = wait_for(
+        lambda: all("peer_lost:2" in ev.snapshot()[k].alarms for k in (0, 1)), 5.0,
+        "agents 0 and 1 to report peer 2 lost", ev,
+    )  # fmt: skip
+    assert noticed <= 3.0
+
+    def vehicle3_left_offboard() -> bool:
+        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
+        return msg is not None and msg.get_srcSystem() == 3 and msg.custom_mode != (6 << 16)
+
+    wait_for(vehicle3_left_offboard, 5.0, "vehicle 3's PX4 offboard-loss failsafe")
+    assert time.monotonic() - t_kill < 5.0
+
+    # restart it: it rejoins (its peers clear the alarm, it publishes again)
+    procs.start("agent2-restart", agent_args[2])
+    wait_for(
+        lambda: all("peer_lost:2" not in ev.snapshot()[k].alarms for k in (0, 1))
+        and ev.snapshot()[2].stamp_s > 0 and ev.snapshot()[2].phase in ("ready", "flying"),
+        30.0, "agent 2 to rejoin", ev,
+    )  # fmt: skip
+
+    ev.command_all("land")
+    wait_for(lambda: all(not s.in_air for s in ev.snapshot().values()), 40.0, "everyone landed", ev)
+    assert procs.dead() == ["agent2"]  # only the one we killed

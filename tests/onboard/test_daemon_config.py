@@ -1,0 +1,87 @@
+"""Fleet files and the daemon's clock: validation messages and clock semantics."""
+
+import time
+from pathlib import Path
+
+import pytest
+
+from onboard.daemon.clock import SimClockFollower
+from onboard.daemon.config import ConfigError, load_fleet
+from onboard.daemon.loop import agent_config
+
+FORMATION = """
+[[agent]]
+id = 0
+position_ned = [0.0, 0.0, -5.0]
+[[agent]]
+id = 1
+position_ned = [4.0, 0.0, -5.0]
+yaw_deg = 180.0
+[[agent]]
+id = 2
+position_ned = [2.0, 3.0, -6.0]
+yaw_deg = -90.0
+"""
+
+
+def write(tmp_path: Path, fleet: str, formation: str = FORMATION) -> Path:
+    (tmp_path / "formation.toml").write_text(formation)
+    path = tmp_path / "fleet.toml"
+    path.write_text(fleet)
+    return path
+
+
+def test_defaults_and_urls(tmp_path):
+    fleet = load_fleet(write(tmp_path, 'formation = "formation.toml"\n'))
+    assert fleet.n == 3
+    assert fleet.mavlink_url(2) == "udpin:127.0.0.1:14542"
+    assert fleet.zenoh_port(0) == 7448 and fleet.sim_zenoh_port() == 7447
+    cfg = agent_config(fleet, 1)
+    assert cfg.agent_id == 1 and cfg.n_agents == 3
+    assert len(cfg.edges) == 6  # no [[edge]], no [camera]: everyone sees everyone
+    # the prior is the plan scaled by prior_scale (0.6) about its centroid, not any truth
+    centroid = (2.0, 1.0, -16.0 / 3.0)
+    plan0 = (0.0, 0.0, -5.0)
+    expected = tuple(c + 0.6 * (p - c) for p, c in zip(plan0, centroid, strict=True))
+    assert cfg.p_hat0_ned[0] == pytest.approx(expected, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("fleet", "needle"),
+    [
+        ('formation = "formation.toml"\n[rates]\ncore = 0.0\n', "rates.core: must be > 0"),
+        ('formation = "formation.toml"\nmode = "dance"\n', "mode"),
+        ('formation = "missing.toml"\n', "formation:"),
+        ('formation = "formation.toml"\nspeed = 3\n', "unknown field"),
+        (
+            'formation = "formation.toml"\n[rates]\ncore = 10.0\npublish = 50.0\n',
+            "rates.core must be >=",
+        ),
+        ('formation = "formation.toml"\nprior_scale = -1.0\n', "prior_scale"),
+    ],
+)
+def test_bad_fleet_files(tmp_path, fleet, needle):
+    with pytest.raises(ConfigError, match=r"fleet\.toml") as info:
+        load_fleet(write(tmp_path, fleet))
+    assert needle in str(info.value)
+
+
+def test_ids_must_be_vehicle_indices(tmp_path):
+    with pytest.raises(ConfigError, match=r"agent ids must be 0\.\.2"):
+        load_fleet(
+            write(tmp_path, 'formation = "formation.toml"\n', FORMATION.replace("id = 0", "id = 7"))
+        )
+
+
+def test_sim_clock_follower():
+    clock = SimClockFollower()
+    assert clock.now() is None
+    clock.update(10.0, speedup=2.0, lockstep=False)
+    time.sleep(0.05)
+    t1 = clock.now()
+    assert 10.08 <= t1 <= 10.5  # extrapolated at twice the wall rate
+    clock.update(10.01, speedup=2.0, lockstep=False)  # a sample behind the extrapolation
+    assert clock.now() >= t1  # never runs backwards
+    clock.update(20.0, speedup=1.0, lockstep=True)
+    time.sleep(0.02)
+    assert clock.now() == 20.0  # lockstep: holds until the next step
