@@ -88,6 +88,8 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     consensus_k_p: float = 20.0
     consensus_k_i: float = 20.0
     k_w_l_coupling: float = 5.0
+    w_l_max_rad_s: float = 0.3
+    """Bound of the active rotation rate ``w_l`` of eq. 13-15 (anti-windup, not in the paper)."""
     excitation_relay_every: int = 5
     """Steps between relays of the whole excitation table (own edges go out every step)."""
     # unconstrained active perception (eq. 11-12)
@@ -552,7 +554,9 @@ class AgentCore:
             if self._fresh(stamp, t_s) and len(x) == 1
         ]
         dw += cfg.k_w_l_coupling * sum(w - self.w_l for w in shared)
-        self.w_l += dt * dw
+        # anti-windup: the vehicle cannot turn the formation faster than this, so integrating
+        # past it only stores error (with delayed lambdabar it ran away to 1e35 otherwise)
+        self.w_l = max(-cfg.w_l_max_rad_s, min(cfg.w_l_max_rad_s, self.w_l + dt * dw))
         loc = self.localization
         n3 = act.rotation_velocity_body(loc.p_hat_ned, loc.yaw_hat_rad, self.p_bar)
         wl = self.w_l

@@ -34,7 +34,7 @@ def agent(
     from onboard.daemon.bearings import SimCameraSource
     from onboard.daemon.clock import SimClockFollower, WallClock
     from onboard.daemon.config import ConfigError, load_fleet
-    from onboard.daemon.loop import AgentDaemon
+    from onboard.daemon.loop import AgentDaemon, agent_config
     from onboard.daemon.peers import DropCounter, PeerLink
 
     logging.basicConfig(
@@ -59,7 +59,9 @@ def agent(
         config_file=c.zenoh.config_file or None,
     )
     drops = DropCounter()
-    peers = PeerLink(c.fleet, agent_id, range(fleet.n), settings, drops)
+    core_config = agent_config(fleet, agent_id)
+    neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}
+    peers = PeerLink(c.fleet, agent_id, range(fleet.n), settings, drops, neighbours)
     if c.clock == "sim":
         follower = SimClockFollower()
 

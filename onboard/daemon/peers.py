@@ -52,7 +52,9 @@ class DropCounter:
 
 
 class PeerLink:
-    """Zenoh I/O of one agent (module docstring). ``known`` are the fleet's agent ids."""
+    """Zenoh I/O of one agent (module docstring). ``known`` are the fleet's agent ids;
+    ``listen_to`` the agents whose peer payloads it subscribes to (its graph neighbours; default
+    every other agent), so nobody decodes traffic it would drop anyway."""
 
     def __init__(
         self,
@@ -61,8 +63,10 @@ class PeerLink:
         known: Iterable[int],
         settings: ZenohSettings,
         drops: DropCounter,
+        listen_to: Iterable[int] | None = None,
     ) -> None:
         self.fleet = fleet
+        self.listen_to = frozenset(listen_to) if listen_to is not None else None
         self.id = agent_id
         self.known = frozenset(known)
         self.drops = drops
@@ -75,9 +79,10 @@ class PeerLink:
         self._publishers: dict[str, Any] = {}
         self._ack_seq = 0
         self._token = self.session.liveliness().declare_token(alive_key(fleet, agent_id))
-        self._handles.append(
-            self.session.declare_subscriber(f"bf/{fleet}/*/{PEER_TOPIC}/**", self._on_peer)
-        )
+        for j in sorted(self.listen_to if listen_to is not None else self.known - {agent_id}):
+            self._handles.append(
+                self.session.declare_subscriber(key(fleet, j, PEER_TOPIC) + "/**", self._on_peer)
+            )
         self._handles.append(
             self.session.declare_subscriber(key(fleet, agent_id, COMMAND_TOPIC), self._on_command)
         )

@@ -1,0 +1,294 @@
+"""Fleet commands: one action sent to every selected vehicle at the same moment.
+
+* ``arm``, ``takeoff``, ``land`` go to the autopilots: a COMMAND_LONG to each system id over the
+  ground-station link, retried like MAVSDK does (every :data:`RETRY_PERIOD_S` until a
+  COMMAND_ACK arrives or the timeout ends). ``takeoff`` on ArduPilot first sets GUIDED and sends
+  the altitude in param 7; on PX4 the params are NaN, so ``MIS_TAKEOFF_ALT`` applies.
+* ``start``, ``hold`` go to the agents: a :class:`~messages.command.FleetCommand` on
+  ``bf/<fleet>/<id>/command``, answered by a :class:`~messages.command.CommandAck`.
+* ``stop`` is the emergency action: LAND to every selected autopilot *and* a Zenoh ``stop`` to
+  every selected agent, at once; a vehicle counts as reached when either path acknowledged, so
+  it lands even if its agent is dead.
+
+Every vehicle gets a :class:`Outcome`; the caller prints them and fails if any is not ``ok``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from groundstation.gcs.mavlink_listener import MavlinkListener
+from groundstation.gcs.mavlink_state import Ack, MavlinkState
+from groundstation.gcs.zenoh_listener import ZenohListener, ZenohState
+from messages import mavlink as mv
+from messages.codec import encode
+from messages.command import COMMAND_TOPIC, FleetCommand
+from messages.keys import key
+
+MAVLINK_ACTIONS = ("arm", "takeoff", "land")
+AGENT_ACTIONS = ("start", "hold")
+ACTIONS = ("arm", "takeoff", "start", "hold", "land", "stop")
+RETRY_PERIOD_S = 0.5
+GCS_SENDER_ID = 0
+"""``FleetCommand.sender`` of the ground station (messages/command.py convention)."""
+
+RESULT_NAMES = {
+    mv.RESULT_ACCEPTED: "ACCEPTED",
+    mv.RESULT_TEMPORARILY_REJECTED: "TEMPORARILY_REJECTED",
+    mv.RESULT_DENIED: "DENIED",
+    mv.RESULT_UNSUPPORTED: "UNSUPPORTED",
+    mv.RESULT_FAILED: "FAILED",
+    mv.RESULT_IN_PROGRESS: "IN_PROGRESS",
+}
+
+
+@dataclass
+class Outcome:
+    """What happened to one vehicle: ``ok`` and a human-readable line per path."""
+
+    agent_id: int
+    ok: bool = False
+    details: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class MavStep:
+    """One COMMAND_LONG of a (possibly multi-step) action."""
+
+    command: int
+    params: tuple[float, ...]
+    label: str
+
+
+def parse_ids(text: str) -> list[int]:
+    """``"1,3,5-7"`` -> ``[1, 3, 5, 6, 7]``; ``ValueError`` on anything else."""
+    out: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        lo, sep, hi = part.partition("-")
+        try:
+            a = int(lo)
+            b = int(hi) if sep else a
+        except ValueError:
+            raise ValueError(f"bad id list {text!r}: use e.g. 1,3 or 0-3") from None
+        if a < 0 or b < a:
+            raise ValueError(f"bad id range {part!r} in {text!r}")
+        out.update(range(a, b + 1))
+    if not out:
+        raise ValueError("empty id list")
+    return sorted(out)
+
+
+def mavlink_steps(action: str, flavour: str, takeoff_alt_m: float) -> list[MavStep]:
+    """The COMMAND_LONGs of a MAVLink action for one autopilot flavour."""
+    nan = math.nan
+    if action == "arm":
+        return [MavStep(mv.CMD_COMPONENT_ARM_DISARM, (1.0,), "arm")]
+    if action == "takeoff":
+        if flavour == "ardupilot":
+            guided = (float(mv.BASE_MODE_CUSTOM), float(mv.COPTER_MODES["GUIDED"]))
+            return [
+                MavStep(mv.CMD_DO_SET_MODE, guided, "GUIDED"),
+                MavStep(mv.CMD_NAV_TAKEOFF, (0, 0, 0, nan, 0, 0, takeoff_alt_m), "takeoff"),
+            ]
+        return [MavStep(mv.CMD_NAV_TAKEOFF, (-1, 0, 0, nan, nan, nan, nan), "takeoff")]
+    if action in ("land", "stop"):
+        if flavour == "ardupilot":
+            return [MavStep(mv.CMD_NAV_LAND, (0, 0, 0, nan, 0, 0, 0), "land")]
+        return [MavStep(mv.CMD_NAV_LAND, (0, 0, 0, nan, nan, nan, nan), "land")]
+    raise ValueError(f"{action!r} is not a MAVLink action")
+
+
+def discover(
+    mavlink: MavlinkListener | None,
+    zenoh: ZenohListener | None,
+    wanted: Sequence[int] | None,
+    timeout_s: float,
+    sysid_offset: int,
+) -> tuple[set[int], set[int]]:
+    """Vehicles heard within ``timeout_s``: (agent ids with an autopilot heartbeat, agent ids
+    with a live agent). With ``wanted`` it returns as soon as every wanted id was heard on every
+    link we listen to; without, it listens for the whole ``timeout_s``."""
+
+    def heard() -> tuple[set[int], set[int]]:
+        autopilots: set[int] = set()
+        agents: set[int] = set()
+        if mavlink is not None:
+            with mavlink.lock:
+                autopilots = {
+                    s - sysid_offset
+                    for s, t in mavlink.state.systems.items()
+                    if t.last_heartbeat_s is not None
+                }
+        if zenoh is not None:
+            with zenoh.lock:
+                agents = {
+                    i
+                    for i, a in zenoh.state.agents.items()
+                    if a.alive or (a.status_s is not None and a.alive is not False)
+                }
+        return autopilots, agents
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        autopilots, agents = heard()
+        if wanted is not None:
+            need = set(wanted)
+            if (mavlink is None or need <= autopilots) and (zenoh is None or need <= agents):
+                return autopilots, agents
+        time.sleep(0.05)
+    return heard()
+
+
+def _final_ack(acks: Iterable[Ack], sysid: int, command: int) -> Ack | None:
+    for a in acks:
+        if a.sysid == sysid and a.command == command and a.result != mv.RESULT_IN_PROGRESS:
+            return a
+    return None
+
+
+def run_mavlink(
+    mavlink: MavlinkListener,
+    action: str,
+    ids: Sequence[int],
+    sysid_offset: int,
+    timeout_s: float,
+    takeoff_alt_m: float = 2.5,
+) -> dict[int, Outcome]:
+    """Send ``action`` to every vehicle in ``ids`` at once (step by step for multi-step actions)
+    and wait for each COMMAND_ACK. Vehicles never heard fail with ``not heard``."""
+    out = {i: Outcome(i) for i in ids}
+    systems = mavlink.systems()
+    active: dict[int, list[MavStep]] = {}
+    for i in ids:
+        sys = systems.get(i + sysid_offset)
+        if sys is None or sys.last_heartbeat_s is None:
+            out[i].details.append("mavlink: not heard")
+        else:
+            active[i] = mavlink_steps(action, sys.flavour, takeoff_alt_m)
+    step = 0
+    while active:
+        batch = {i: steps[step] for i, steps in active.items() if step < len(steps)}
+        if not batch:
+            break
+        results = _send_and_wait(mavlink, batch, sysid_offset, timeout_s)
+        for i, (ok, text) in results.items():
+            if not ok:
+                out[i].details.append(f"mavlink {batch[i].label}: {text}")
+                del active[i]
+            elif step == len(active[i]) - 1:
+                out[i].ok = True
+                out[i].details.append(f"mavlink {batch[i].label}: {text}")
+                del active[i]
+        step += 1
+    return out
+
+
+def _send_and_wait(
+    mavlink: MavlinkListener,
+    batch: dict[int, MavStep],
+    sysid_offset: int,
+    timeout_s: float,
+) -> dict[int, tuple[bool, str]]:
+    """One COMMAND_LONG to every vehicle of ``batch`` in one burst, retried until each ACK."""
+    t0 = mavlink.clock()
+    deadline = t0 + timeout_s
+    pending = dict(batch)
+    results: dict[int, tuple[bool, str]] = {}
+    attempt = 0
+    next_send = t0
+
+    def all_answered(state: MavlinkState) -> bool:
+        acks = [a for a in state.acks if a.t_s >= t0]
+        return all(
+            _final_ack(acks, i + sysid_offset, st.command) is not None for i, st in pending.items()
+        )
+
+    while pending:
+        if mavlink.clock() >= next_send:
+            for i, st in pending.items():
+                mavlink.send_command_long(
+                    i + sysid_offset, st.command, st.params, min(attempt, 255)
+                )
+            attempt += 1
+            next_send = mavlink.clock() + RETRY_PERIOD_S
+        mavlink.wait_for(all_answered, max(0.0, min(next_send, deadline) - mavlink.clock()))
+        acks = mavlink.acks_since(t0)
+        systems = mavlink.systems()
+        for i, st in list(pending.items()):
+            ack = _final_ack(acks, i + sysid_offset, st.command)
+            if ack is None:
+                continue
+            text = RESULT_NAMES.get(ack.result, f"RESULT_{ack.result}")
+            sys = systems.get(i + sysid_offset)
+            if ack.result != mv.RESULT_ACCEPTED and sys is not None and sys.statustext:
+                text = f"{text} ({sys.statustext})"
+            results[i] = (ack.result == mv.RESULT_ACCEPTED, text)
+            del pending[i]
+        if pending and mavlink.clock() >= deadline:
+            for i in pending:
+                results[i] = (False, f"timeout after {timeout_s:g} s ({attempt} tries)")
+            break
+    return results
+
+
+def run_zenoh(
+    session: Any,
+    zenoh: ZenohListener,
+    fleet: str,
+    action: str,
+    ids: Sequence[int],
+    timeout_s: float,
+    request_id: int | None = None,
+    expect: Sequence[int] | None = None,
+) -> dict[int, Outcome]:
+    """Publish one :class:`FleetCommand` per agent in ``ids`` in one burst, then wait for the
+    :class:`CommandAck` with our ``request_id`` of every agent in ``expect`` (default: all of
+    ``ids``); an agent not expected (never heard) is reported without waiting for it."""
+    wait_ids = set(ids if expect is None else expect) & set(ids)
+    rid = request_id if request_id is not None else time.time_ns() & 0x7FFFFFFF
+    t0 = zenoh.clock()
+    stamp = time.time()
+    for seq, i in enumerate(ids):
+        cmd = FleetCommand(
+            sender=GCS_SENDER_ID, seq=seq, stamp_s=stamp, target=i, action=action, request_id=rid
+        )  # type: ignore[arg-type]
+        session.put(key(fleet, i, COMMAND_TOPIC), encode(cmd))
+
+    def acked(state: ZenohState) -> dict[int, Any]:
+        return {
+            a.sender: a
+            for t, a in state.acks
+            if t >= t0 and a.request_id == rid and a.sender in ids
+        }
+
+    zenoh.wait_for(lambda s: wait_ids <= set(acked(s)), timeout_s if wait_ids else 0.0)
+    with zenoh.lock:
+        got = acked(zenoh.state)
+    out = {i: Outcome(i) for i in ids}
+    for i in ids:
+        a = got.get(i)
+        if a is None and i not in wait_ids:
+            out[i].details.append(f"agent: never heard ({action} sent)")
+        elif a is None:
+            out[i].details.append(f"agent: no ack within {timeout_s:g} s")
+        else:
+            out[i].ok = a.accepted
+            verdict = "accepted" if a.accepted else "rejected"
+            out[i].details.append(f"agent: {verdict}{f' ({a.detail})' if a.detail else ''}")
+    return out
+
+
+def merge_stop(mav: dict[int, Outcome], agents: dict[int, Outcome]) -> dict[int, Outcome]:
+    """``stop`` reaches a vehicle when its autopilot acknowledged LAND or its agent the stop."""
+    out: dict[int, Outcome] = {}
+    for i in sorted(set(mav) | set(agents)):
+        parts = [o for o in (mav.get(i), agents.get(i)) if o is not None]
+        out[i] = Outcome(i, any(o.ok for o in parts), [d for o in parts for d in o.details])
+    return out

@@ -1,0 +1,251 @@
+"""What the ground station hears on Zenoh: every sample under ``bf/<fleet>/**`` and the agents'
+liveliness tokens ``bf/<fleet>/<id>/alive``.
+
+:func:`classify` maps one sample's key and bytes to a decoded payload or a
+:class:`~messages.codec.MessageError` whose ``reason`` is counted: the codec's reasons
+(``malformed``, ``version``, ``nonfinite``, ``oversize``) plus ``foreign`` (a key or topic that
+is not ours), ``wrong_fleet`` and ``sender_mismatch`` (a payload whose sender is not the agent
+its key names). :class:`ZenohState` folds samples into one :class:`AgentTelemetry` per agent;
+both are pure. :class:`ZenohListener` wires them to a session under a lock.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from messages.agent import VehicleStatus
+from messages.codec import MessageError, Payload, decode
+from messages.command import ACK_TOPIC, COMMAND_TOPIC, CommandAck, FleetCommand
+from messages.keys import ALIVE_TOPIC, PEER_TOPIC, STATUS_TOPIC, fleet_keys, is_sim_key, parse_key
+from messages.peer import PeerPayload
+from messages.sim import CAMERA_TOPIC, TRUTH_TOPIC, CameraBearings, SimClock, SimStep, Truth
+
+TOPIC_TYPES: dict[str, Any] = {
+    STATUS_TOPIC: VehicleStatus,
+    COMMAND_TOPIC: FleetCommand,
+    ACK_TOPIC: CommandAck,
+    CAMERA_TOPIC: CameraBearings,
+    TRUTH_TOPIC: Truth,
+}
+"""Payload type of each per-agent topic (``peer/<kind>`` topics carry :data:`PeerPayload`)."""
+SIM_TOPIC_TYPES: dict[str, Any] = {"clock": SimClock, "step": SimStep}
+
+SampleHook = Callable[[str, bytes, float], None]
+"""Called with (key, payload bytes, wall-clock receive time in s) for every sample."""
+AliveHook = Callable[[str, bool, float], None]
+"""Called with (liveliness key, alive, wall-clock receive time in s)."""
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A valid sample: the agent its key names (``None`` for the simulator's fleet-wide keys),
+    the topic, and the payload."""
+
+    agent_id: int | None
+    topic: str
+    payload: Payload
+
+
+def payload_type(topic: str) -> Any:
+    """The payload type of a per-agent topic; ``None`` if the topic is not one we know."""
+    if topic in TOPIC_TYPES:
+        return TOPIC_TYPES[topic]
+    if topic.startswith(PEER_TOPIC + "/") and topic.count("/") == 1:
+        return PeerPayload
+    return None
+
+
+def classify(fleet: str, key: str, data: bytes) -> Decoded:
+    """Decode one sample of fleet ``fleet``; raises :class:`MessageError` (see module doc)."""
+    parts = key.split("/", 3)
+    if len(parts) == 4 and parts[0] == "bf" and parts[1] != fleet:
+        raise MessageError("wrong_fleet", f"{key} is not under fleet {fleet!r}")
+    if is_sim_key(key):
+        kind = SIM_TOPIC_TYPES.get(parts[3])
+        if kind is None:
+            raise MessageError("foreign", f"unknown simulator topic in {key}")
+        return Decoded(None, parts[3], decode(data, kind))
+    try:
+        _fleet, agent_id, topic = parse_key(key)
+    except ValueError as exc:
+        raise MessageError("foreign", str(exc)) from None
+    kind = payload_type(topic)
+    if kind is None:
+        raise MessageError("foreign", f"unknown topic {topic!r} in {key}")
+    payload = decode(data, kind)
+    owner = payload.target if isinstance(payload, FleetCommand) else payload.sender
+    if owner != agent_id:
+        raise MessageError("sender_mismatch", f"{type(payload).__name__} of {owner} on {key}")
+    if isinstance(payload, CameraBearings) and len(payload.targets) != len(payload.beta_body):
+        raise MessageError("malformed", f"{key}: {len(payload.targets)} targets, bearings differ")
+    return Decoded(agent_id, topic, payload)
+
+
+def alive_agent(fleet: str, key: str) -> int | None:
+    """Agent id of a liveliness key ``bf/<fleet>/<id>/alive``; ``None`` if it is not one."""
+    try:
+        f, agent_id, topic = parse_key(key)
+    except ValueError:
+        return None
+    return agent_id if f == fleet and topic == ALIVE_TOPIC else None
+
+
+@dataclass
+class AgentTelemetry:
+    """The latest status of one agent and its liveliness, with receive times (monotonic s)."""
+
+    agent_id: int
+    first_seen_s: float
+    status: VehicleStatus | None = None
+    status_s: float | None = None
+    alive: bool | None = None
+    """Liveliness token present (``None``: never seen one)."""
+    alive_s: float | None = None
+
+
+@dataclass
+class ZenohState:
+    """Everything heard under one fleet's keys."""
+
+    fleet: str
+    agents: dict[int, AgentTelemetry] = field(default_factory=dict)
+    counters: dict[str, int] = field(default_factory=dict)
+    """Dropped samples by reason."""
+    topics: dict[str, int] = field(default_factory=dict)
+    """Accepted samples by topic (``peer/<kind>`` kept apart, so peer traffic is visible)."""
+    acks: list[tuple[float, CommandAck]] = field(default_factory=list)
+    clock: SimClock | None = None
+    last_error: str = ""
+    scale_pending_s: float | None = None
+    """First time an agent reported a scale not yet converged."""
+    scale_converged_s: float | None = None
+    """First time every agent reported ``scale_converged`` (at or after ``scale_pending_s``;
+    also set, with ``scale_pending_s`` left ``None``, if the first statuses heard had already
+    converged: the monitor started late)."""
+    max_acks: int = 1000
+
+    def count(self, reason: str) -> None:
+        self.counters[reason] = self.counters.get(reason, 0) + 1
+
+    def agent(self, agent_id: int, t_s: float) -> AgentTelemetry:
+        a = self.agents.get(agent_id)
+        if a is None:
+            a = self.agents[agent_id] = AgentTelemetry(agent_id, t_s)
+        return a
+
+    def fold_sample(self, key: str, data: bytes, t_s: float) -> Decoded | None:
+        """Fold one sample received at ``t_s``; ``None`` if it was dropped (and counted)."""
+        try:
+            d = classify(self.fleet, key, data)
+        except MessageError as exc:
+            self.count(exc.reason)
+            self.last_error = f"{key}: {exc}"[:200]
+            return None
+        self.topics[d.topic] = self.topics.get(d.topic, 0) + 1
+        if d.agent_id is None:
+            if isinstance(d.payload, SimClock):
+                self.clock = d.payload
+            return d
+        if isinstance(d.payload, VehicleStatus):
+            a = self.agent(d.agent_id, t_s)
+            a.status, a.status_s = d.payload, t_s
+            self._track_scale(t_s)
+        elif isinstance(d.payload, CommandAck):
+            self.acks.append((t_s, d.payload))
+            del self.acks[: max(0, len(self.acks) - self.max_acks)]
+        # commands are ours (or another ground station's); camera, truth and peer samples are
+        # counted by topic: only a status or a liveliness token makes an agent appear
+        return d
+
+    def fold_alive(self, key: str, alive: bool, t_s: float) -> int | None:
+        agent_id = alive_agent(self.fleet, key)
+        if agent_id is None:
+            self.count("foreign")
+            return None
+        a = self.agent(agent_id, t_s)
+        a.alive, a.alive_s = alive, t_s
+        return agent_id
+
+    def _track_scale(self, t_s: float) -> None:
+        if self.scale_converged_s is not None:
+            return
+        statuses = [a.status for a in self.agents.values() if a.status is not None]
+        if all(s.agent.scale_converged for s in statuses):
+            self.scale_converged_s = t_s
+        elif self.scale_pending_s is None:
+            self.scale_pending_s = t_s
+
+
+class ZenohListener:
+    """Subscribes to a fleet on an open session and keeps a :class:`ZenohState` under a lock."""
+
+    def __init__(
+        self, session: Any, fleet: str, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.session = session
+        self.fleet = fleet
+        self.clock = clock
+        self.state = ZenohState(fleet)
+        self.lock = threading.Condition()
+        self.sample_hooks: list[SampleHook] = []
+        self.alive_hooks: list[AliveHook] = []
+        self._subs: list[Any] = []
+
+    def start(self) -> ZenohListener:
+        import zenoh
+
+        self._kind_put = zenoh.SampleKind.PUT
+        self._subs.append(self.session.declare_subscriber(fleet_keys(self.fleet), self._on_sample))
+        self._subs.append(
+            self.session.liveliness().declare_subscriber(
+                f"bf/{self.fleet}/*/{ALIVE_TOPIC}", self._on_alive, history=True
+            )
+        )
+        return self
+
+    def close(self) -> None:
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:  # the session may be closing already
+                pass
+        self._subs = []
+
+    def _on_sample(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        try:
+            data = sample.payload.to_bytes()
+        except Exception:  # a payload zenoh cannot hand over: count it, never raise
+            with self.lock:
+                self.state.count("malformed")
+            return
+        t_wall = time.time()
+        with self.lock:
+            self.state.fold_sample(key, data, self.clock())
+            self.lock.notify_all()
+        for hook in self.sample_hooks:
+            hook(key, data, t_wall)
+
+    def _on_alive(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        alive = sample.kind == self._kind_put
+        t_wall = time.time()
+        with self.lock:
+            self.state.fold_alive(key, alive, self.clock())
+            self.lock.notify_all()
+        for hook in self.alive_hooks:
+            hook(key, alive, t_wall)
+
+    def wait_for(self, predicate: Callable[[ZenohState], bool], timeout_s: float) -> bool:
+        deadline = self.clock() + timeout_s
+        with self.lock:
+            while not predicate(self.state):
+                left = deadline - self.clock()
+                if left <= 0:
+                    return False
+                self.lock.wait(min(left, 0.1))
+            return True

@@ -1,0 +1,434 @@
+"""``bearingflock gcs ...``: the operator's commands (``docs/gcs.md``).
+
+* ``monitor`` — live full-screen table of every vehicle (``--once --json``: one snapshot);
+* ``arm | takeoff | land`` (autopilots, MAVLink), ``start | hold`` (agents, Zenoh), ``stop``
+  (both: the emergency action) — to ``--ids 1,3`` or ``--all``, confirmed unless ``--yes``;
+* ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``.
+
+Exit status: 0 success, 1 a command failed for some vehicle (or was not confirmed), 2 bad
+usage or a link that cannot be opened. Zenoh, pymavlink, mcap and matplotlib are imported
+inside the commands so that ``bearingflock --help`` stays instant.
+"""
+
+from __future__ import annotations
+
+import json as jsonlib
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+EXIT_OK, EXIT_FAILED, EXIT_INVALID = 0, 1, 2
+DEFAULT_MAVLINK = "udp:0.0.0.0:14550"
+DEFAULT_ZENOH = "tcp/127.0.0.1:7447"
+
+gcs_app = typer.Typer(
+    name="gcs",
+    help="Ground station: monitor, fleet commands, record, replay, plot.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@gcs_app.callback()
+def _gcs() -> None:
+    """Ground station: monitor, fleet commands, record, replay, plot."""
+
+
+# --- shared options ---------------------------------------------------------------------------------
+FleetOpt = Annotated[str, typer.Option("--fleet", help="Fleet name (Zenoh keys bf/NAME/...).")]
+MavlinkOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--mavlink",
+        help=f"MAVLink endpoint, repeatable: udp:HOST:PORT listens, udpout:HOST:PORT sends to a "
+        f"vehicle; 'none' turns MAVLink off (default {DEFAULT_MAVLINK}).",
+    ),
+]
+ZenohOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--zenoh",
+        help=f"Zenoh endpoint to connect to, repeatable; 'none' turns Zenoh off "
+        f"(default {DEFAULT_ZENOH}).",
+    ),
+]
+ZenohListenOpt = Annotated[
+    list[str] | None, typer.Option("--zenoh-listen", help="Zenoh endpoint to listen on.")
+]
+SysidOpt = Annotated[
+    int, typer.Option("--sysid-offset", help="MAVLink system id = agent id + this.")
+]
+
+
+def _fail(message: str, code: int = EXIT_INVALID) -> typer.Exit:
+    sys.stderr.write(f"error: {message}\n")
+    return typer.Exit(code)
+
+
+def _off(values: list[str]) -> bool:
+    return any(v.strip().lower() in ("none", "off", "") for v in values)
+
+
+def _open_mavlink(stack: ExitStack, endpoints: list[str] | None) -> Any:
+    from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
+
+    values = endpoints or [DEFAULT_MAVLINK]
+    if _off(values):
+        return None
+    try:
+        listener = MavlinkListener([parse_endpoint(e) for e in values])
+    except (ValueError, OSError) as exc:
+        raise _fail(str(exc)) from None
+    stack.callback(listener.close)
+    return listener.start()
+
+
+def _open_zenoh(stack: ExitStack, connect: list[str] | None, listen: list[str] | None) -> Any:
+    from messages.transport import ZenohSettings, open_session
+
+    values = connect if connect is not None else [DEFAULT_ZENOH]
+    if _off(values):
+        return None
+    try:
+        session = open_session(ZenohSettings(connect=values, listen=listen or []))
+    except Exception as exc:  # zenoh raises its own error type for a bad endpoint
+        raise _fail(f"cannot open a Zenoh session: {exc}") from None
+    stack.callback(session.close)
+    return session
+
+
+def _zenoh_listener(stack: ExitStack, session: Any, fleet: str) -> Any:
+    from groundstation.gcs.zenoh_listener import ZenohListener
+
+    if session is None:
+        return None
+    listener = ZenohListener(session, fleet).start()
+    stack.callback(listener.close)
+    return listener
+
+
+def _check_fleet(fleet: str) -> None:
+    from messages.keys import fleet_keys
+
+    try:
+        fleet_keys(fleet)
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
+
+
+@contextmanager
+def _sigterm_event() -> Iterator[threading.Event]:
+    """An event set on SIGTERM (Ctrl-C raises KeyboardInterrupt as usual); the previous
+    handler comes back on exit. Outside the main thread there is no handler to install."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+# --- monitor ----------------------------------------------------------------------------------------
+@gcs_app.command("monitor")
+def monitor(
+    fleet: FleetOpt = "alpha",
+    mavlink: MavlinkOpt = None,
+    zenoh: ZenohOpt = None,
+    zenoh_listen: ZenohListenOpt = None,
+    once: Annotated[bool, typer.Option("--once", help="Print one snapshot and exit.")] = False,
+    json: Annotated[bool, typer.Option("--json", help="With --once: print JSON.")] = False,
+    wait: Annotated[
+        float, typer.Option("--wait", help="With --once: listen this long first (s).")
+    ] = 2.5,
+    sysid_offset: SysidOpt = 1,
+) -> None:
+    """Live table of every vehicle: link health, autopilot, estimator, alarms."""
+    from groundstation.gcs.monitor import Monitor, MonitorConfig, render
+
+    _check_fleet(fleet)
+    if json and not once:
+        raise _fail("--json needs --once")
+    with ExitStack() as stack:
+        session = _open_zenoh(stack, zenoh, zenoh_listen)  # first: opening it takes a while
+        zen = _zenoh_listener(stack, session, fleet)
+        mav = _open_mavlink(stack, mavlink)
+        mon = Monitor(MonitorConfig(fleet=fleet, sysid_offset=sysid_offset), mav, zen)
+        if once:
+            time.sleep(max(0.0, wait))
+            snap = mon.snapshot()
+            if json:
+                typer.echo(jsonlib.dumps(snap, indent=1))
+            else:
+                from rich.console import Console
+
+                Console(width=None if sys.stdout.isatty() else 160).print(render(snap))
+            return
+        with _sigterm_event() as stop:
+            mon.live(stop=stop)
+
+
+# --- fleet commands -----------------------------------------------------------------------------------
+def _fleet_command(
+    action: str,
+    ids: str | None,
+    all_: bool,
+    yes: bool,
+    fleet: str,
+    mavlink: list[str] | None,
+    zenoh: list[str] | None,
+    zenoh_listen: list[str] | None,
+    timeout: float,
+    discover_s: float,
+    sysid_offset: int,
+    alt: float,
+    json: bool,
+) -> None:
+    from groundstation.gcs import commands as cmds
+
+    _check_fleet(fleet)
+    if ids is not None and all_:
+        raise _fail("give either --ids or --all, not both")
+    if ids is None and not all_ and action != "stop":
+        raise _fail(f"{action}: select vehicles with --ids 1,3 or --all")
+    try:
+        wanted = cmds.parse_ids(ids) if ids is not None else None
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
+    needs_mav = action in ("arm", "takeoff", "land", "stop")
+    needs_zen = action in ("start", "hold", "stop")
+    with ExitStack() as stack:
+        session = _open_zenoh(stack, zenoh, zenoh_listen) if needs_zen else None
+        zen = _zenoh_listener(stack, session, fleet)
+        mav = _open_mavlink(stack, mavlink) if needs_mav else None
+        if needs_mav and mav is None and action != "stop":
+            raise _fail(f"{action} goes over MAVLink: --mavlink none is not possible")
+        if needs_zen and zen is None and action != "stop":
+            raise _fail(f"{action} goes over Zenoh: --zenoh none is not possible")
+        autopilots, agents = cmds.discover(mav, zen, wanted, discover_s, sysid_offset)
+        if wanted is not None:
+            targets = list(wanted)
+        elif action == "stop":
+            targets = sorted(autopilots | agents)
+        else:
+            targets = sorted(autopilots if needs_mav else agents)
+        if not targets:
+            raise _fail(f"{action}: no vehicles heard within {discover_s:g} s", EXIT_FAILED)
+        listing = ", ".join(str(i) for i in targets)
+        if not yes and not typer.confirm(f"{action} vehicles {listing} of fleet {fleet!r}?"):
+            typer.echo("not confirmed: nothing sent")
+            raise typer.Exit(EXIT_FAILED)
+        if action == "stop":
+            results = _stop(cmds, mav, session, zen, fleet, targets, agents, timeout, sysid_offset)
+        elif needs_mav:
+            results = cmds.run_mavlink(mav, action, targets, sysid_offset, timeout, alt)
+        else:
+            results = cmds.run_zenoh(session, zen, fleet, action, targets, timeout)
+    failed = [i for i, o in results.items() if not o.ok]
+    if json:
+        payload = [{"id": i, "ok": o.ok, "details": o.details} for i, o in sorted(results.items())]
+        typer.echo(jsonlib.dumps({"action": action, "results": payload}))
+    else:
+        for i, o in sorted(results.items()):
+            typer.echo(f"vehicle {i}: {'OK  ' if o.ok else 'FAIL'}  " + "; ".join(o.details))
+        typer.echo(f"{action}: {len(results) - len(failed)}/{len(results)} vehicles OK")
+    if failed:
+        raise typer.Exit(EXIT_FAILED)
+
+
+def _stop(
+    cmds: Any,
+    mav: Any,
+    session: Any,
+    zen: Any,
+    fleet: str,
+    targets: list[int],
+    agents: set[int],
+    timeout: float,
+    sysid_offset: int,
+) -> dict[int, Any]:
+    """LAND over MAVLink and ``stop`` over Zenoh, both at once (two threads)."""
+    mav_out: dict[int, Any] = {}
+    zen_out: dict[int, Any] = {}
+
+    def over_zenoh() -> None:
+        zen_out.update(
+            cmds.run_zenoh(session, zen, fleet, "stop", targets, timeout, expect=sorted(agents))
+        )
+
+    thread = None
+    if session is not None:
+        thread = threading.Thread(target=over_zenoh, daemon=True)
+        thread.start()
+    if mav is not None:
+        mav_out = cmds.run_mavlink(mav, "stop", targets, sysid_offset, timeout)
+    if thread is not None:
+        thread.join(timeout + 1.0)
+    return cmds.merge_stop(mav_out, zen_out)
+
+
+def _make_command(action: str, doc: str) -> None:
+    def command(
+        ids: Annotated[
+            str | None, typer.Option("--ids", help="Vehicle (agent) ids, e.g. 1,3 or 0-3.")
+        ] = None,
+        all_: Annotated[bool, typer.Option("--all", help="Every vehicle heard.")] = False,
+        yes: Annotated[
+            bool, typer.Option("--yes", "-y", help="Do not ask for confirmation.")
+        ] = False,
+        fleet: FleetOpt = "alpha",
+        mavlink: MavlinkOpt = None,
+        zenoh: ZenohOpt = None,
+        zenoh_listen: ZenohListenOpt = None,
+        timeout: Annotated[
+            float, typer.Option("--timeout", help="Seconds to wait for each acknowledgement.")
+        ] = 3.0,
+        discover: Annotated[
+            float, typer.Option("--discover", help="Seconds to listen for vehicles first.")
+        ] = 2.0,
+        sysid_offset: SysidOpt = 1,
+        alt: Annotated[
+            float,
+            typer.Option(
+                "--alt", help="takeoff: altitude (m, ArduPilot; PX4 uses MIS_TAKEOFF_ALT)."
+            ),
+        ] = 2.5,
+        json: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+    ) -> None:
+        _fleet_command(
+            action, ids, all_, yes, fleet, mavlink, zenoh, zenoh_listen, timeout, discover,
+            sysid_offset, alt, json,
+        )  # fmt: skip
+
+    command.__doc__ = doc
+    gcs_app.command(action)(command)
+
+
+_make_command("arm", "Arm the selected autopilots (MAVLink).")
+_make_command("takeoff", "Take off with the selected autopilots (MAVLink).")
+_make_command("start", "Start the mission on the selected agents (Zenoh).")
+_make_command("hold", "Hold position: the selected agents stop moving (Zenoh).")
+_make_command("land", "Land the selected autopilots (MAVLink).")
+_make_command(
+    "stop",
+    "EMERGENCY: LAND to every selected autopilot and stop to every agent (default: all).",
+)
+
+
+# --- record / replay / plot ----------------------------------------------------------------------------
+@gcs_app.command("record")
+def record(
+    out: Annotated[Path, typer.Argument(help="Output MCAP file.")],
+    fleet: FleetOpt = "alpha",
+    mavlink: MavlinkOpt = None,
+    zenoh: ZenohOpt = None,
+    zenoh_listen: ZenohListenOpt = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds.")
+    ] = None,
+) -> None:
+    """Record every Zenoh sample of the fleet and every MAVLink message heard (MCAP)."""
+    from groundstation.gcs.record import Recorder
+
+    _check_fleet(fleet)
+    with ExitStack() as stack:
+        stop = stack.enter_context(_sigterm_event())
+        try:
+            rec = Recorder(out, fleet)
+        except OSError as exc:
+            raise _fail(f"cannot write {out}: {exc.strerror}") from None
+        stack.callback(rec.close)
+        session = _open_zenoh(stack, zenoh, zenoh_listen)
+        zen = _zenoh_listener(stack, session, fleet)
+        mav = _open_mavlink(stack, mavlink)
+        if mav is not None:
+            mav.hooks.append(rec.mavlink)
+        if zen is not None:
+            zen.sample_hooks.append(rec.zenoh_sample)
+            zen.alive_hooks.append(rec.alive)
+        typer.echo(f"recording fleet {fleet!r} to {out}; Ctrl-C to stop", err=True)
+        t_end = None if duration is None else time.monotonic() + duration
+        try:
+            while not stop.wait(0.2):
+                if t_end is not None and time.monotonic() >= t_end:
+                    break
+        except KeyboardInterrupt:
+            pass
+        if zen is not None:  # stop the hooks before the file is closed
+            zen.close()
+    counts = " ".join(f"{k}={v}" for k, v in sorted(rec.counts.items())) or "nothing"
+    typer.echo(f"recorded {counts} to {out}", err=True)
+
+
+@gcs_app.command("replay")
+def replay(
+    src: Annotated[Path, typer.Argument(help="MCAP file written by gcs record.")],
+    speed: Annotated[
+        float, typer.Option("--speed", help="Time scale (2: twice as fast; 0: no pacing).")
+    ] = 1.0,
+    zenoh: ZenohOpt = None,
+    zenoh_listen: ZenohListenOpt = None,
+    as_fleet: Annotated[
+        str | None, typer.Option("--as-fleet", help="Republish under this fleet name.")
+    ] = None,
+    include_commands: Annotated[
+        bool, typer.Option(help="Also republish fleet commands and lockstep steps (unsafe).")
+    ] = False,
+    wait_subscribers: Annotated[
+        float, typer.Option("--wait-subscribers", help="Wait up to this long for a subscriber (s).")
+    ] = 2.0,
+) -> None:
+    """Republish a recording's Zenoh samples and liveliness tokens, paced by its timestamps."""
+    from groundstation.gcs.record import iter_records
+    from groundstation.gcs.replay import replay as run_replay
+
+    if not src.is_file():
+        raise _fail(f"{src}: no such file")
+    if as_fleet is not None:
+        _check_fleet(as_fleet)
+    with ExitStack() as stack:
+        stop = stack.enter_context(_sigterm_event())
+        session = _open_zenoh(stack, zenoh, zenoh_listen)
+        if session is None:
+            raise _fail("replay publishes on Zenoh: --zenoh none is not possible")
+        try:
+            stats = run_replay(
+                iter_records(src), session, speed, as_fleet, include_commands,
+                wait_subscribers, stop,
+            )  # fmt: skip
+        except KeyboardInterrupt:
+            return
+    skipped = " ".join(f"{k}={v}" for k, v in sorted(stats.skipped.items())) or "nothing"
+    typer.echo(f"replayed {stats.published} samples, {stats.tokens} tokens; skipped {skipped}")
+
+
+@gcs_app.command("plot")
+def plot(
+    src: Annotated[Path, typer.Argument(help="MCAP file written by gcs record.")],
+    out: Annotated[Path, typer.Option("--out", help="Directory for the PNG files.")],
+    fleet: Annotated[
+        str | None, typer.Option("--fleet", help="Fleet to plot [the recording's].")
+    ] = None,
+) -> None:
+    """PNGs of scale error, SfM convergence, rigidity, bearing errors and trajectories."""
+    from groundstation.gcs.analysis import load_series
+    from groundstation.gcs.plot import plot_all
+
+    if not src.is_file():
+        raise _fail(f"{src}: no such file")
+    series = load_series(src, fleet)
+    if not series.vehicles:
+        raise _fail(f"{src}: no vehicle data for fleet {series.fleet!r}", EXIT_FAILED)
+    out.mkdir(parents=True, exist_ok=True)
+    for path in plot_all(series, out):
+        typer.echo(str(path))
