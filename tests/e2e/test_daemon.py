@@ -7,68 +7,16 @@ from __future__ import annotations
 
 import socket
 import time
-from pathlib import Path
 
 import msgspec
 import pytest
 from pymavlink import mavutil
 
-from groundstation.demo import DemoPorts, Evaluator, Processes, plan_formation, write_demo_files
-from messages.transport import ZenohSettings, loopback_endpoint
-from sim.server import free_port_base
-
 pytestmark = pytest.mark.e2e
-N = 3
+N = 3  # vehicles in the `fleet` fixture (conftest.py)
 
 
-def wait_for(predicate, timeout_s: float, what: str, ev: Evaluator | None = None) -> float:
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout_s:
-        if predicate():
-            return time.monotonic() - t0
-        time.sleep(0.1)
-    state = (
-        {k: (s.phase, s.autopilot_mode, s.alarms) for k, s in ev.snapshot().items()} if ev else {}
-    )
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; status {state}")
-
-
-@pytest.fixture
-def fleet(tmp_path: Path):
-    base = free_port_base(N + 2, span=60)
-    ports = DemoPorts(zenoh=base, mavlink=base + 10 + N, gcs=base + 9)
-    plan = plan_formation(N, seed=1)
-    name = f"t{base}"
-    fleet_path = write_demo_files(tmp_path, plan, ports, name, "formation-active")
-    procs = Processes(tmp_path)
-    procs.start(
-        "sim",
-        [
-            "-m", "sim.cli", "--vehicles", str(N), "--layout", str(tmp_path / "start.toml"),
-            "--zenoh", loopback_endpoint(ports.zenoh), "--fleet", name,
-            "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
-            "--bind-base", str(ports.mavlink + N + 5), "--camera-fov", "360", "--quiet",
-        ],
-    )  # fmt: skip
-    agent_args = {
-        i: ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path)]
-        for i in range(N)
-    }
-    for i, args in agent_args.items():
-        procs.start(f"agent{i}", args)
-    ev = Evaluator(
-        name,
-        plan,
-        ZenohSettings(connect=[loopback_endpoint(ports.zenoh + k) for k in range(N + 1)]),
-    )
-    try:
-        yield ev, procs, ports, agent_args, name
-    finally:
-        ev.close()
-        procs.stop()
-
-
-def test_daemons_fly_survive_bad_input_and_faults(fleet):
+def test_daemons_fly_survive_bad_input_and_faults(fleet, wait_for):
     ev, procs, ports, agent_args, name = fleet
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{ports.gcs}", source_system=250)
 
@@ -86,7 +34,7 @@ def test_daemons_fly_survive_bad_input_and_faults(fleet):
         (f"bf/{name}/1/peer/motion", msgspec.msgpack.encode(
             {"type": "peer.motion", "sender": 1, "v_body": [float("nan"), 0.0, 0.0],
              "yaw_rate_rad_s": 0.0, "yaw_rad": 0.0})),
-        (f"bf/{name}/9/peer/motion", msgspec.msgpack.encode(
+        (f"bf/{name}/1/peer/motion", msgspec.msgpack.encode(  # claims a vehicle not in the fleet
             {"type": "peer.motion", "sender": 9, "v_body": [0.0, 0.0, 0.0],
              "yaw_rate_rad_s": 0.0, "yaw_rad": 0.0})),
     ]  # fmt: skip

@@ -1,0 +1,68 @@
+"""Shared fixtures of the end-to-end tests that run the simulator and real daemons."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from groundstation.demo import DemoPorts, Evaluator, Processes, plan_formation, write_demo_files
+from messages.transport import ZenohSettings, loopback_endpoint
+from sim.server import free_port_base
+
+N = 3
+
+
+def _wait_for(predicate, timeout_s: float, what: str, ev: Evaluator | None = None) -> float:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout_s:
+        if predicate():
+            return time.monotonic() - t0
+        time.sleep(0.1)
+    state = (
+        {k: (s.phase, s.autopilot_mode, s.alarms) for k, s in ev.snapshot().items()} if ev else {}
+    )
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; status {state}")
+
+
+@pytest.fixture
+def fleet(tmp_path: Path):
+    base = free_port_base(N + 2, span=60)
+    ports = DemoPorts(zenoh=base, mavlink=base + 10 + N, gcs=base + 9)
+    plan = plan_formation(N, seed=1)
+    name = f"t{base}"
+    fleet_path = write_demo_files(tmp_path, plan, ports, name, "formation-active")
+    procs = Processes(tmp_path)
+    procs.start(
+        "sim",
+        [
+            "-m", "sim.cli", "--vehicles", str(N), "--layout", str(tmp_path / "start.toml"),
+            "--zenoh", loopback_endpoint(ports.zenoh), "--fleet", name,
+            "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
+            "--bind-base", str(ports.mavlink + N + 5), "--camera-fov", "360", "--quiet",
+        ],
+    )  # fmt: skip
+    agent_args = {
+        i: ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path)]
+        for i in range(N)
+    }
+    for i, args in agent_args.items():
+        procs.start(f"agent{i}", args)
+    ev = Evaluator(
+        name,
+        plan,
+        ZenohSettings(connect=[loopback_endpoint(ports.zenoh + k) for k in range(N + 1)]),
+    )
+    try:
+        yield ev, procs, ports, agent_args, name
+    finally:
+        ev.close()
+        procs.stop()
+
+
+@pytest.fixture
+def wait_for():
+    """``wait_for(predicate, timeout_s, what, ev=None)``: poll until true, else fail with the
+    fleet's status in the message; returns the time it took."""
+    return _wait_for
