@@ -24,7 +24,7 @@ def gcs(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]
     )  # fmt: skip
 
 
-def test_monitor_and_stop_with_real_agents(fleet, wait_for):
+def test_monitor_and_stop_with_real_agents(fleet, wait_for, tmp_path):
     ev, procs, ports, _, name = fleet
     links = ["--fleet", name]
     for k in range(N + 1):  # the simulator's and every agent's Zenoh endpoint
@@ -47,6 +47,15 @@ def test_monitor_and_stop_with_real_agents(fleet, wait_for):
         assert v["phase"] == "flying" and v["heartbeat_age_s"] < 2.0
         assert "e_index" in v and "chi_hat_inv_m" in v and v["alive"] is True
         assert not v["red"], v["alarms"]
+
+    # a recording of the flying daemons (status, peer traffic, truth, MAVLink) turns into plots
+    log = tmp_path / "agents.mcap"
+    out = gcs("record", str(log), "--duration", "4.0", *links, *mav)
+    assert out.returncode == 0, out.stdout + out.stderr
+    out = gcs("plot", str(log), "--out", str(tmp_path / "plots"), "--fleet", name)
+    assert out.returncode == 0, out.stdout + out.stderr
+    pngs = sorted((tmp_path / "plots").glob("*.png"))
+    assert len(pngs) >= 4 and all(p.stat().st_size > 10_000 for p in pngs), pngs
 
     # the live monitor in a pseudo-terminal: kill agent 1 and time its row turning to agent_lost
     tmux = shutil.which("tmux")
