@@ -26,39 +26,29 @@ from __future__ import annotations
 import json
 import math
 import threading
-from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import fields
 from typing import Any
 
 from messages import mavlink as mv
 from onboard.autopilot.base import (
     ActionResult,
-    AutopilotLink,
     Flavour,
     LinkConfig,
-    LinkCounters,
     LinkError,
     LinkEvent,
     StreamState,
-    Telemetry,
-    Vec3,
 )
+from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
     CONTROL_MODE,
     Attempt,
     Saturated,
-    TelemetryState,
     climb_done,
     flavour_from_autopilot,
     retry_loop,
-    saturate_setpoint,
-    snapshot,
 )
 
-MAX_EVENTS = 1000
 HEARTBEAT_WAIT_S = 2.5
-_ZERO = Saturated((0.0, 0.0, 0.0), 0.0, non_finite=False, clipped=False)
 
 # MAVSDK ActionResult / OffboardResult names -> (MAV_RESULT or None for timeout, worth a retry)
 _MAVSDK_RESULTS: dict[str, tuple[int | None, bool]] = {
@@ -94,22 +84,13 @@ def map_result(name: str) -> tuple[int | None, bool]:
     return _MAVSDK_RESULTS.get(name, (mv.RESULT_FAILED, False))
 
 
-class MavsdkLink(AutopilotLink):
+class MavsdkLink(LinkBookkeeping):
     """:class:`~onboard.autopilot.base.AutopilotLink` over MAVSDK v4 (module docstring)."""
 
     def __init__(self, config: LinkConfig | None = None) -> None:
-        self.config = config if config is not None else LinkConfig()
-        self._clock = self.config.clock
-        self._cond = threading.Condition(threading.RLock())
-        self._state = TelemetryState()
-        self._counts = {f.name: 0 for f in fields(LinkCounters)}
-        self._events: deque[LinkEvent] = deque(maxlen=MAX_EVENTS)
-        self._stream = StreamState.IDLE
-        self._setpoint = _ZERO
-        self._t_setpoint = -math.inf
+        super().__init__(config)
         self._sent_setpoint: Saturated | None = None
         self._stop_request: str | None = None
-        self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._mavsdk: Any = None
         self._system: Any = None
@@ -273,7 +254,7 @@ class MavsdkLink(AutopilotLink):
                 if self._stream is StreamState.ACTIVE:
                     sp = self._setpoint
                     if now - self._t_setpoint > self.config.setpoint_timeout_s:
-                        sp = _ZERO
+                        sp = ZERO_SETPOINT
                         self._counts["stale_setpoints"] += 1
             if reason is not None:
                 self._end_stream(reason)
@@ -301,6 +282,9 @@ class MavsdkLink(AutopilotLink):
             off.destroy()  # ends MAVSDK's 20 Hz sender without commanding a mode
         self._event("stream_stopped", reason)
 
+    def _on_setpoint(self, sat: Saturated) -> None:
+        self._push_setpoint(sat)
+
     def _push_setpoint(self, sp: Saturated) -> None:
         from mavsdk.plugins.offboard import OffboardError, VelocityBodyYawspeed
 
@@ -316,50 +300,6 @@ class MavsdkLink(AutopilotLink):
             self._count("link_errors")
 
     # --- public state ---------------------------------------------------------------------------
-    def telemetry(self) -> Telemetry:
-        with self._cond:
-            return snapshot(
-                self._state,
-                self._clock(),
-                self.config,
-                self._system_id,
-                self._stream,
-                self._setpoint,
-                LinkCounters(**self._counts),
-            )
-
-    def events(self) -> list[LinkEvent]:
-        with self._cond:
-            out = list(self._events)
-            self._events.clear()
-        return out
-
-    def _event(self, kind: str, detail: str) -> None:
-        with self._cond:
-            self._events.append(LinkEvent(self._clock(), kind, detail))
-
-    def _count(self, name: str) -> None:
-        with self._cond:
-            self._counts[name] += 1
-
-    def set_setpoint(self, v_body: Vec3, yaw_rate_radps: float) -> tuple[Vec3, float]:
-        cfg = self.config
-        sat = saturate_setpoint(
-            v_body,
-            yaw_rate_radps,
-            cfg.max_speed_xy_mps,
-            cfg.max_speed_z_mps,
-            cfg.max_yaw_rate_radps,
-        )
-        with self._cond:
-            self._setpoint, self._t_setpoint = sat, self._clock()
-            self._counts["nan_setpoints"] += int(sat.non_finite)
-            self._counts["saturated_setpoints"] += int(sat.clipped)
-            active = self._stream is not StreamState.IDLE
-        if active:
-            self._push_setpoint(sat)
-        return sat.v_body, sat.yaw_rate_radps
-
     def stop_streaming(self, reason: str = "requested") -> None:
         with self._cond:
             was = self._stream
@@ -368,13 +308,6 @@ class MavsdkLink(AutopilotLink):
             self._end_stream(reason)
 
     # --- actions --------------------------------------------------------------------------------
-    def _wait_state(self, pred: Callable[[TelemetryState], bool], timeout_s: float) -> bool:
-        with self._cond:
-            return (
-                self._cond.wait_for(lambda: pred(self._state) or self._stop.is_set(), timeout_s)
-                and not self._stop.is_set()
-            )
-
     def _call(self, fn: Callable[[], Any]) -> Attempt:
         """One blocking MAVSDK call as an :class:`Attempt`."""
         from mavsdk import MavsdkError
@@ -526,10 +459,10 @@ class MavsdkLink(AutopilotLink):
         if self._offboard is None:
             self._offboard = Offboard(self._system)
         with self._cond:
-            self._setpoint, self._t_setpoint = _ZERO, self._clock()
+            self._setpoint, self._t_setpoint = ZERO_SETPOINT, self._clock()
             self._stream = StreamState.PRIMING
         self._sent_setpoint = None
-        self._push_setpoint(_ZERO)
+        self._push_setpoint(ZERO_SETPOINT)
         off = self._offboard
 
         def attempt() -> Attempt:

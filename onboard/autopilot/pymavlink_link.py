@@ -35,9 +35,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import fields
 from typing import Any
 
 from pymavlink import mavutil
@@ -45,17 +43,13 @@ from pymavlink import mavutil
 from messages import mavlink as mv
 from onboard.autopilot.base import (
     ActionResult,
-    AutopilotLink,
     Flavour,
     LinkConfig,
-    LinkCounters,
     LinkError,
-    LinkEvent,
     StreamState,
-    Telemetry,
-    Vec3,
     result_name,
 )
+from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
     CONTROL_MODE,
     DATA_STREAM_GROUP,
@@ -63,7 +57,6 @@ from onboard.autopilot.states import (
     MAV_AUTOPILOT_INVALID,
     MAV_TYPE_ONBOARD_CONTROLLER,
     Attempt,
-    Saturated,
     TelemetryState,
     climb_done,
     flavour_from_autopilot,
@@ -71,8 +64,6 @@ from onboard.autopilot.states import (
     mode_command_params,
     retry_loop,
     retryable,
-    saturate_setpoint,
-    snapshot,
 )
 
 HEARTBEAT_PERIOD_S = 1.0
@@ -81,35 +72,23 @@ HEARTBEAT_WAIT_S = 2.5
 """How long a state change confirmed by ACK may take to show in the heartbeat (1 Hz + slack)."""
 PRIME_S = 0.3
 """PX4: stream setpoints this long before asking for OFFBOARD."""
-MAX_EVENTS = 1000
-
-_ZERO = Saturated((0.0, 0.0, 0.0), 0.0, non_finite=False, clipped=False)
 
 
-class PymavlinkLink(AutopilotLink):
+class PymavlinkLink(LinkBookkeeping):
     """:class:`~onboard.autopilot.base.AutopilotLink` over pymavlink (module docstring)."""
 
     def __init__(self, config: LinkConfig | None = None) -> None:
-        self.config = config if config is not None else LinkConfig()
-        self._clock = self.config.clock
-        self._cond = threading.Condition(threading.RLock())
+        super().__init__(config)
         self._send_lock = threading.Lock()
-        self._state = TelemetryState()
-        self._counts = {f.name: 0 for f in fields(LinkCounters)}
         self._conn: Any = None
         self._target: tuple[int, int] | None = None
         self._acks: dict[int, int] = {}
         self._params: dict[str, float] = {}
-        self._events: deque[LinkEvent] = deque(maxlen=MAX_EVENTS)
-        self._stream = StreamState.IDLE
-        self._setpoint = _ZERO
-        self._t_setpoint = -math.inf
         self._setpoint_stale = False
         self._provisional_mode: str | None = None
         self._link_lost = False
         self._t0 = self._clock()
         self._t_heartbeat_sent = -math.inf
-        self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
 
     # --- identity -------------------------------------------------------------------------------
@@ -222,7 +201,7 @@ class PymavlinkLink(AutopilotLink):
                 name = pid.decode(errors="replace") if isinstance(pid, bytes) else str(pid)
                 self._params[name.rstrip("\x00")] = float(msg.param_value)
             elif kind == "STATUSTEXT":
-                self._event(now, "statustext", self._state.statustexts[-1][2])
+                self._event("statustext", self._state.statustexts[-1][2], t_s=now)
             self._cond.notify_all()
 
     def _adopt(self, msg: Any, src: tuple[int, int]) -> bool:
@@ -236,20 +215,20 @@ class PymavlinkLink(AutopilotLink):
             return False
         self._target = src
         self._state.flavour = flavour
-        self._event(self._clock(), "connected", f"system {src[0]} ({flavour.value})")
+        self._event("connected", f"system {src[0]} ({flavour.value})")
         return True
 
     def _after_heartbeat(self, prev_mode: str, prev_armed: bool, now: float) -> None:
         st = self._state
         if self._link_lost:
             self._link_lost = False
-            self._event(now, "link_restored", "heartbeat back")
+            self._event("link_restored", "heartbeat back", t_s=now)
         if st.mode != prev_mode and prev_mode != "UNKNOWN":
-            self._event(now, "mode_changed", f"{prev_mode} -> {st.mode}")
+            self._event("mode_changed", f"{prev_mode} -> {st.mode}", t_s=now)
             if self._provisional_mode == prev_mode:
-                self._event(now, "mode_reverted", f"{prev_mode} reverted to {st.mode}")
+                self._event("mode_reverted", f"{prev_mode} reverted to {st.mode}", t_s=now)
         if st.armed != prev_armed:
-            self._event(now, "armed" if st.armed else "disarmed", st.mode)
+            self._event("armed" if st.armed else "disarmed", st.mode, t_s=now)
         if self._stream is StreamState.ACTIVE and st.flavour is not None:
             control = CONTROL_MODE[st.flavour]
             if st.mode != control:
@@ -299,17 +278,17 @@ class PymavlinkLink(AutopilotLink):
                 and now - self._state.t_heartbeat_s > self.config.heartbeat_timeout_s
             ):
                 self._link_lost = True
-                self._event(now, "link_lost", "no heartbeat")
+                self._event("link_lost", "no heartbeat", t_s=now)
             if self._stream is StreamState.IDLE or self._target is None:
                 return
             sp = self._setpoint
             if self._stream is StreamState.ACTIVE:
                 stale = now - self._t_setpoint > self.config.setpoint_timeout_s
                 if stale:
-                    sp = _ZERO
+                    sp = ZERO_SETPOINT
                     self._counts["stale_setpoints"] += 1
                     if not self._setpoint_stale:
-                        self._event(now, "setpoint_stale", "no fresh setpoint: sending zero")
+                        self._event("setpoint_stale", "no fresh setpoint: sending zero", t_s=now)
                 self._setpoint_stale = stale
             ts, tc = self._target
         v, r = sp.v_body, sp.yaw_rate_radps
@@ -323,51 +302,7 @@ class PymavlinkLink(AutopilotLink):
             self._count("setpoints_sent")
 
     # --- public state ---------------------------------------------------------------------------
-    def telemetry(self) -> Telemetry:
-        with self._cond:
-            return snapshot(
-                self._state,
-                self._clock(),
-                self.config,
-                self.target_system,
-                self._stream,
-                self._setpoint,
-                LinkCounters(**self._counts),
-            )
-
-    def events(self) -> list[LinkEvent]:
-        with self._cond:
-            out = list(self._events)
-            self._events.clear()
-        return out
-
-    def _event(self, t_s: float, kind: str, detail: str) -> None:
-        with self._cond:
-            self._events.append(LinkEvent(t_s, kind, detail))
-
-    def _count(self, name: str, k: int = 1) -> None:
-        with self._cond:
-            self._counts[name] += k
-
     # --- setpoints ------------------------------------------------------------------------------
-    def set_setpoint(self, v_body: Vec3, yaw_rate_radps: float) -> tuple[Vec3, float]:
-        cfg = self.config
-        sat = saturate_setpoint(
-            v_body,
-            yaw_rate_radps,
-            cfg.max_speed_xy_mps,
-            cfg.max_speed_z_mps,
-            cfg.max_yaw_rate_radps,
-        )
-        with self._cond:
-            self._setpoint = sat
-            self._t_setpoint = self._clock()
-            if sat.non_finite:
-                self._counts["nan_setpoints"] += 1
-            if sat.clipped:
-                self._counts["saturated_setpoints"] += 1
-        return sat.v_body, sat.yaw_rate_radps
-
     def stop_streaming(self, reason: str = "requested") -> None:
         with self._cond:
             self._stop_stream_locked(self._clock(), reason)
@@ -375,7 +310,7 @@ class PymavlinkLink(AutopilotLink):
     def _stop_stream_locked(self, now: float, reason: str) -> None:
         if self._stream is not StreamState.IDLE:
             self._stream = StreamState.IDLE
-            self._event(now, "stream_stopped", reason)
+            self._event("stream_stopped", reason, t_s=now)
 
     # --- commands -------------------------------------------------------------------------------
     def _require_target(self) -> tuple[int, int]:
@@ -413,14 +348,6 @@ class PymavlinkLink(AutopilotLink):
                 if result != mv.RESULT_IN_PROGRESS:
                     return result
                 deadline = self._clock() + 5.0 * self.config.ack_timeout_s
-
-    def _wait_state(self, pred: Callable[[TelemetryState], bool], timeout_s: float) -> bool:
-        """Block until ``pred(state)`` holds (re-checked on every message) or time runs out."""
-        with self._cond:
-            return (
-                self._cond.wait_for(lambda: pred(self._state) or self._stop.is_set(), timeout_s)
-                and not self._stop.is_set()
-            )
 
     def _retry(
         self, action: str, attempt: Callable[[], Attempt], timeout_s: float | None
@@ -688,7 +615,7 @@ class PymavlinkLink(AutopilotLink):
                 why = f"not in the air (landed state {self._state.landed_state})"
                 return self._result("start_velocity_control", Attempt(False, None, 0, why), 0, t0)
         with self._cond:
-            self._setpoint, self._t_setpoint = _ZERO, self._clock()
+            self._setpoint, self._t_setpoint = ZERO_SETPOINT, self._clock()
             self._stream = StreamState.PRIMING
         if self.flavour is Flavour.PX4:
             self._stop.wait(PRIME_S)
@@ -696,7 +623,7 @@ class PymavlinkLink(AutopilotLink):
         with self._cond:
             if res.ok and self._stream is StreamState.PRIMING:
                 self._stream = StreamState.ACTIVE
-                self._event(self._clock(), "stream_started", control)
+                self._event("stream_started", control)
             elif not res.ok:
                 self._stop_stream_locked(self._clock(), f"{control} refused: {res.detail}")
             ok = self._stream is StreamState.ACTIVE

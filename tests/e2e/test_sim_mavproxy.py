@@ -13,30 +13,10 @@ import time
 
 import pytest
 
+from sim.launch import start_sim
 from sim.server import free_port_base
 
 pytestmark = pytest.mark.e2e
-
-
-def start_sim(*args: str) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "--quiet", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert proc.stdout is not None
-    deadline = time.monotonic() + 20.0
-    lines = []
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        lines.append(line)
-        if "Ctrl-C to stop" in line:
-            return proc
-        if not line and proc.poll() is not None:
-            break
-    proc.kill()
-    raise AssertionError("simulator did not start:\n" + "".join(lines))
 
 
 class MavProxy:

@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import math
-import signal
-import subprocess
-import sys
 import time
 
 import pytest
 
+from sim.launch import start_sim, stop_sim
 from sim.server import free_port_base
 
 pytestmark = pytest.mark.e2e
@@ -24,34 +22,6 @@ N = 3
 U_FWD_MPS = 1.0
 YAWSPEED_DEG_S = 15.0
 OFFBOARD_WALL_S = 3.0
-
-
-def start_sim(*args: str) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "--quiet", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert proc.stdout is not None
-    deadline = time.monotonic() + 20.0
-    lines = []
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        lines.append(line)
-        if "Ctrl-C to stop" in line:
-            return proc
-        if not line and proc.poll() is not None:
-            break
-    proc.kill()
-    raise AssertionError("simulator did not start:\n" + "".join(lines))
-
-
-def stop_sim(proc: subprocess.Popen[str]) -> str:
-    proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=10)
-    assert proc.returncode == 0, out
-    return out
 
 
 @pytest.fixture

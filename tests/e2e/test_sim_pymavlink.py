@@ -7,9 +7,6 @@ checks hold whatever the wall-clock jitter of this machine.
 from __future__ import annotations
 
 import math
-import signal
-import subprocess
-import sys
 import time
 from typing import Any
 
@@ -17,38 +14,12 @@ import pytest
 from pymavlink import mavutil
 
 from messages import mavlink as mv
+from sim.launch import start_sim, stop_sim
 from sim.server import free_port_base
 
 pytestmark = pytest.mark.e2e
 
 SPEEDUP = 2.0
-
-
-def start_sim(*args: str) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "--quiet", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert proc.stdout is not None
-    deadline = time.monotonic() + 20.0
-    lines = []
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        lines.append(line)
-        if "Ctrl-C to stop" in line:
-            return proc
-        if not line and proc.poll() is not None:
-            break
-    proc.kill()
-    raise AssertionError("simulator did not start:\n" + "".join(lines))
-
-
-def stop_sim(proc: subprocess.Popen[str]) -> None:
-    proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=10)
-    assert proc.returncode == 0, out
 
 
 class Link:

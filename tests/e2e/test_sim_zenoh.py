@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
-import sys
 import threading
 import time
 
@@ -15,30 +13,10 @@ import zenoh
 
 from messages.codec import decode, encode
 from messages.sim import CameraBearings, SimClock, SimStep, Truth, clock_key, step_key
+from sim.launch import start_sim
 from sim.server import free_port_base
 
 pytestmark = pytest.mark.e2e
-
-
-def start_sim(*args: str) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "--quiet", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert proc.stdout is not None
-    deadline = time.monotonic() + 20.0
-    lines = []
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        lines.append(line)
-        if "Ctrl-C to stop" in line:
-            return proc
-        if not line and proc.poll() is not None:
-            break
-    proc.kill()
-    raise AssertionError("simulator did not start:\n" + "".join(lines))
 
 
 def session(connect: str):
