@@ -11,6 +11,7 @@ from collections.abc import Callable
 from dataclasses import fields
 
 from onboard.autopilot.base import (
+    ActionResult,
     AutopilotLink,
     LinkConfig,
     LinkCounters,
@@ -19,7 +20,14 @@ from onboard.autopilot.base import (
     Telemetry,
     Vec3,
 )
-from onboard.autopilot.states import Saturated, TelemetryState, saturate_setpoint, snapshot
+from onboard.autopilot.states import (
+    Attempt,
+    Saturated,
+    TelemetryState,
+    retry_loop,
+    saturate_setpoint,
+    snapshot,
+)
 
 MAX_EVENTS = 1000
 ZERO_SETPOINT = Saturated((0.0, 0.0, 0.0), 0.0, non_finite=False, clipped=False)
@@ -73,6 +81,38 @@ class LinkBookkeeping(AutopilotLink):
                 self._cond.wait_for(lambda: pred(self._state) or self._stop.is_set(), timeout_s)
                 and not self._stop.is_set()
             )
+
+    def _retry(
+        self, action: str, attempt: Callable[[], Attempt], timeout_s: float | None
+    ) -> ActionResult:
+        """Run ``attempt`` until it works, cannot work, or ``timeout_s`` runs out (backoff)."""
+        t0 = self._clock()
+        cfg = self.config
+        a, sends, why = retry_loop(
+            attempt,
+            self._clock,
+            self._stop.wait,
+            cfg.retry_timeout_s if timeout_s is None else timeout_s,
+            cfg.backoff_initial_s,
+            cfg.backoff_max_s,
+        )
+        return self._result(action, a, sends, t0, suffix=f" ({why})" if why else "")
+
+    def _result(
+        self, action: str, a: Attempt, sends: int, t0: float, suffix: str = ""
+    ) -> ActionResult:
+        """The action's outcome with the STATUSTEXT reasons the autopilot gave since ``t0``."""
+        with self._cond:
+            reasons = self._state.texts_since(t0)
+        return ActionResult(
+            action=action,
+            ok=a.ok,
+            result=a.result,
+            attempts=sends,
+            elapsed_s=self._clock() - t0,
+            reasons=reasons,
+            detail=a.detail + suffix,
+        )
 
     def set_setpoint(self, v_body: Vec3, yaw_rate_radps: float) -> tuple[Vec3, float]:
         cfg = self.config

@@ -45,7 +45,6 @@ from onboard.autopilot.states import (
     Saturated,
     climb_done,
     flavour_from_autopilot,
-    retry_loop,
 )
 
 HEARTBEAT_WAIT_S = 2.5
@@ -320,30 +319,6 @@ class MavsdkLink(LinkBookkeeping):
             return Attempt(False, result, 1, name, retry)
         return Attempt(True, mv.RESULT_ACCEPTED, 1)
 
-    def _run(
-        self, action: str, attempt: Callable[[], Attempt], timeout_s: float | None
-    ) -> ActionResult:
-        t0 = self._clock()
-        cfg = self.config
-        a, sends, why = retry_loop(
-            attempt,
-            self._clock,
-            self._stop.wait,
-            cfg.retry_timeout_s if timeout_s is None else timeout_s,
-            cfg.backoff_initial_s,
-            cfg.backoff_max_s,
-        )
-        return self._result(action, a, sends, t0, f" ({why})" if why else "")
-
-    def _result(
-        self, action: str, a: Attempt, sends: int, t0: float, suffix: str = ""
-    ) -> ActionResult:
-        with self._cond:
-            reasons = self._state.texts_since(t0)
-        return ActionResult(
-            action, a.ok, a.result, sends, self._clock() - t0, reasons, a.detail + suffix
-        )
-
     def _require(self) -> Any:
         if self._system is None:
             raise LinkError("not connected")
@@ -390,7 +365,7 @@ class MavsdkLink(LinkBookkeeping):
                 return Attempt(False, a.result, 1, "accepted but not armed", True)
             return a
 
-        return self._run("arm", attempt, timeout_s)
+        return self._retry("arm", attempt, timeout_s)
 
     def disarm(self, force: bool = False, timeout_s: float | None = None) -> ActionResult:
         act = self._require()
@@ -415,7 +390,7 @@ class MavsdkLink(LinkBookkeeping):
         alt = self._call(lambda: act.set_takeoff_altitude(float(altitude_m)))
         if not alt.ok:
             return self._result("takeoff", alt, 1, t0)
-        res = self._run("takeoff", lambda: self._call(act.takeoff), timeout_s)
+        res = self._retry("takeoff", lambda: self._call(act.takeoff), timeout_s)
         if not res.ok or not wait:
             return res
         climb_s = altitude_m / 0.5 + 10.0 if timeout_s is None else timeout_s
@@ -427,7 +402,7 @@ class MavsdkLink(LinkBookkeeping):
         act = self._require()
         self.stop_streaming("land")
         t0 = self._clock()
-        res = self._run("land", lambda: self._call(act.land), timeout_s)
+        res = self._retry("land", lambda: self._call(act.land), timeout_s)
         if not res.ok or not wait:
             return res
         done = self._wait_state(
@@ -441,7 +416,7 @@ class MavsdkLink(LinkBookkeeping):
     def hold(self, timeout_s: float | None = None) -> ActionResult:
         act = self._require()
         self.stop_streaming("hold")
-        return self._run("hold", lambda: self._call(act.hold), timeout_s)
+        return self._retry("hold", lambda: self._call(act.hold), timeout_s)
 
     def start_velocity_control(self, timeout_s: float | None = None) -> ActionResult:
         """Prime MAVSDK's setpoint (zero), ``Offboard.start()`` (MAVSDK streams before it
@@ -471,7 +446,7 @@ class MavsdkLink(LinkBookkeeping):
                 return Attempt(False, a.result, 1, f"heartbeat never showed {control}", True)
             return a
 
-        res = self._run("start_velocity_control", attempt, timeout_s)
+        res = self._retry("start_velocity_control", attempt, timeout_s)
         with self._cond:
             if res.ok and self._stream is StreamState.PRIMING:
                 self._stream = StreamState.ACTIVE

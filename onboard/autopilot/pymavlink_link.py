@@ -62,7 +62,6 @@ from onboard.autopilot.states import (
     flavour_from_autopilot,
     is_autopilot_heartbeat,
     mode_command_params,
-    retry_loop,
     retryable,
 )
 
@@ -348,37 +347,6 @@ class PymavlinkLink(LinkBookkeeping):
                 if result != mv.RESULT_IN_PROGRESS:
                     return result
                 deadline = self._clock() + 5.0 * self.config.ack_timeout_s
-
-    def _retry(
-        self, action: str, attempt: Callable[[], Attempt], timeout_s: float | None
-    ) -> ActionResult:
-        """Run ``attempt`` until it works, cannot work, or ``timeout_s`` runs out (backoff)."""
-        t0 = self._clock()
-        cfg = self.config
-        a, sends, why = retry_loop(
-            attempt,
-            self._clock,
-            self._stop.wait,
-            cfg.retry_timeout_s if timeout_s is None else timeout_s,
-            cfg.backoff_initial_s,
-            cfg.backoff_max_s,
-        )
-        return self._result(action, a, sends, t0, suffix=f" ({why})" if why else "")
-
-    def _result(
-        self, action: str, a: Attempt, sends: int, t0: float, suffix: str = ""
-    ) -> ActionResult:
-        with self._cond:
-            reasons = self._state.texts_since(t0)
-        return ActionResult(
-            action=action,
-            ok=a.ok,
-            result=a.result,
-            attempts=sends,
-            elapsed_s=self._clock() - t0,
-            reasons=reasons,
-            detail=a.detail + suffix,
-        )
 
     def _command_attempt(self, command: int, *params: float) -> Attempt:
         result, sends = self._command(command, *params)
