@@ -22,15 +22,37 @@ class BearingMeasurement(msgspec.Struct, frozen=True, forbid_unknown_fields=True
     stamp_s: float
 
 
+class RangeMeasurement(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A measured distance to another vehicle (e.g. a UWB radio): fixes the scale of
+    angle-based localization (paper 003 eq. 10)."""
+
+    target: int
+    range_m: float
+    stamp_s: float
+
+
+class TargetMeasurement(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A mission target as the tracking algorithm reports it: body-frame unit bearing and
+    distance (paper 003 sec. 5.1 assumes both are provided)."""
+
+    target: int
+    beta_body: Vec3
+    range_m: float
+    stamp_s: float
+
+
 class OwnMeasurements(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Everything the vehicle itself measures at ``t_s``: odometry yaw (own arbitrary reference),
-    body-frame velocity, yaw rate, and the bearings of its latest camera frame."""
+    body-frame velocity, yaw rate, and the bearings of its latest camera frame; optionally
+    ranges to other vehicles and mission targets."""
 
     t_s: float
     yaw_rad: float
     v_body: Vec3
     yaw_rate_rad_s: float
     bearings: tuple[BearingMeasurement, ...] = ()
+    ranges: tuple[RangeMeasurement, ...] = ()
+    targets: tuple[TargetMeasurement, ...] = ()
 
 
 class Setpoint(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

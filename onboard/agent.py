@@ -17,8 +17,14 @@ measurements (:class:`messages.agent.OwnMeasurements`) and the peer payloads it 
    tried first: ``lambda^p`` spans ten decades within 0.4 s when the rotation kicks in, the
    estimator lags, and the over-estimated gradient made eq. 15 diverge.)
 6. the controller of the configured mode: ``active`` (eq. 12), ``random`` (the baseline),
-   ``formation`` (paper 002 eq. 20 + yaw alignment), ``formation-active`` (eq. 13-16) or
-   ``hold``; the setpoint is saturated.
+   ``formation`` (paper 002 eq. 20 + yaw alignment), ``formation-active`` (eq. 13-16),
+   ``rigidity-tracking`` (paper 003: rigidity maintenance, collision avoidance and target
+   tracking; paper 000's SfM machinery is off) or ``hold``; the setpoint is saturated.
+
+With mode ``rigidity-tracking`` or ``rigidity_maintenance`` on, a
+:class:`onboard.rigidity_layer.RigidityLayer` also runs angle localization and the distributed
+rigidity eigen-estimation (paper 003); ``rigidity_maintenance`` adds its rigidity and collision
+actions to any mode (e.g. ``formation-active``, whose SfM distances then give the scale).
 
 Explicit Euler with the step's ``dt`` everywhere (the paper's loop is 2 ms).
 """
@@ -42,6 +48,7 @@ from messages.peer import (
     MotionShare,
     SfmEstimate,
 )
+from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 from onboard.control import active_scale as act
 from onboard.control.formation import formation_velocity, yaw_alignment_rate
 from onboard.control.random_motion import RandomMotion
@@ -49,9 +56,10 @@ from onboard.estimation.consensus import PIConsensus
 from onboard.estimation.localization import LocalizationFilter
 from onboard.estimation.relative_yaw import RelativeYawEdge
 from onboard.estimation.sfm_observer import SfmEdge, WindowAverage, excitation
+from onboard.rigidity_layer import RigidityLayer
 
 Vec3 = tuple[float, float, float]
-Mode = Literal["active", "random", "formation", "formation-active", "hold"]
+Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
 
 
 class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -112,6 +120,42 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     v_max_m_s: float = 3.0
     yaw_rate_max_rad_s: float = 1.5
     peer_timeout_s: float = 0.5
+    # rigidity maintenance (paper 003); defaults are the rigidity scenarios' values
+    rigidity_maintenance: bool = False
+    """Add the rigidity-maintenance action (eq. 19-23) and collision avoidance to the mode's
+    command. Mode ``rigidity-tracking`` without it is the paper's "maintenance off" baseline."""
+    rigidity_eigen: Literal["distributed", "centralized"] = "distributed"
+    """Where ``lambda`` and its gradient come from: the distributed power iteration, or every
+    agent's shared estimate (needs all-to-all communication)."""
+    rigidity_scale_from_sfm: bool = False
+    """Use SfM distances (paper 000) as the scale of angle localization besides ranges."""
+    fov_deg: float = 120.0
+    range_m: float = 15.0
+    lambda_min: float = 0.02
+    lambda_safe: float = 0.2
+    k_rigidity: float = 0.05
+    r_coll_m: float = 0.6
+    r_safe_m: float = 1.5
+    k_collision: float = 1.0
+    track_target: int = -1
+    """Mission target this agent tracks (-1: none)."""
+    r_track_m: float = 2.0
+    k_track_range: float = 0.15
+    k_track_camera: float = 0.4
+    k_angle_loc: float = 4.0
+    k_distance_loc: float = 1.0
+    k_vertical_loc: float = 4.0
+    """Gain of the gravity (bearing elevation) term of angle localization; 0 = angles only."""
+    eigen_k_m: float = 8.0
+    eigen_k_t: float = 10.0
+    eigen_k_n: float = 10.0
+    eigen_gamma: float = 20.0
+    eigen_k_p: float = 8.0
+    eigen_k_i: float = 8.0
+    eigen_momentum: float = 0.0
+    rigidity_warmup_s: float = 0.0
+    """Seconds after the first step during which the rigidity layer's actions are zero, so
+    angle localization and the eigen-estimate converge before the team moves."""
 
     def __post_init__(self) -> None:
         n = self.n_agents
@@ -160,6 +204,12 @@ class AgentCore:
         self.reciprocal = sorted(set(self.out_targets) & set(self.in_sources))
         self.neighbours = sorted(set(self.out_targets) | set(self.in_sources))
         self.running = [j for j in self.reciprocal if me < j]
+        self.paper000 = cfg.mode != "rigidity-tracking"
+        if not self.paper000:  # no SfM edges, relative yaws or bearing localization
+            self.reciprocal, self.running = [], []
+        self.rigidity: RigidityLayer | None = None
+        if cfg.mode == "rigidity-tracking" or cfg.rigidity_maintenance:
+            self.rigidity = RigidityLayer(cfg, self.out_targets, self.neighbours)
 
         p0 = cfg.p_hat0_ned or tuple((0.0, 0.0, 0.0) for _ in range(cfg.n_agents))
         y0 = cfg.yaw_hat0_rad or tuple(0.0 for _ in range(cfg.n_agents))
@@ -218,6 +268,8 @@ class AgentCore:
             SfmEstimate: self._on_sfm,
             ExcitationTable: self._on_excitation,
             ConsensusState: self._on_consensus,
+            AngleLocalizationShare: self._on_rigidity,
+            RigidityEigenShare: self._on_rigidity,
         }
         self._cons_out: tuple[list[str], list[list[float]], list[list[float]]] = ([], [], [])
 
@@ -283,6 +335,12 @@ class AgentCore:
             return
         for name, x, z in zip(msg.names, msg.x, msg.z, strict=True):
             self._cons_in.setdefault(name, {})[j] = (msg.stamp_s, x, z)
+
+    def _on_rigidity(self, j: int, msg: Payload) -> None:
+        if self.rigidity is None:
+            self._drop("unknown_type")
+        elif not self.rigidity.receive(j, msg):
+            self._drop("malformed")
 
     def _fresh(self, stamp_s: float, t_s: float) -> bool:
         return t_s - stamp_s <= self.config.peer_timeout_s
@@ -352,13 +410,24 @@ class AgentCore:
                 )
             )
 
-        self._localize(dt, t_s, u_i, w_i)
+        if self.rigidity is not None:
+            sfm_d = {j: 1.0 / c for j in self.reciprocal if (c := self.chi_hat(j)) and c > 0}
+            self.rigidity.step(t_s, dt, own, yaw_own, u_i, sfm_d, self._seq, outbox)
         self._cons_out = ([], [], [])
-        self._run_consensus(dt, t_s, rel, outbox)
+        if self.paper000:
+            self._localize(dt, t_s, u_i, w_i)
+            self._run_consensus(dt, t_s, rel, outbox)
         v, w = self._control(dt, t_s, u_i, rel)
+        if self.rigidity is not None and cfg.mode != "rigidity-tracking":
+            du, dw = self.rigidity.u_rigidity, self.rigidity.w_rigidity
+            v = (float(v[0] + du[0]), float(v[1] + du[1]), float(v[2] + du[2]))
+            w = float(w + dw)
         v = _saturate(v, cfg.v_max_m_s)
         w = max(-cfg.yaw_rate_max_rad_s, min(cfg.yaw_rate_max_rad_s, w))
 
+        if not self.paper000:
+            self._seq += 1
+            return Setpoint(v_body=v, yaw_rate_rad_s=w), outbox
         names, xs, zs = self._cons_out
         if cfg.mode == "formation-active":
             names.append("w_l")
@@ -531,6 +600,10 @@ class AgentCore:
         mode = cfg.mode
         if mode == "hold":
             return (0.0, 0.0, 0.0), 0.0
+        if mode == "rigidity-tracking":
+            assert self.rigidity is not None
+            u, w = self.rigidity.u_rigidity, self.rigidity.w_rigidity
+            return (float(u[0]), float(u[1]), float(u[2])), float(w)
         if mode == "random":
             self.u_cmd = self._random.step(dt)
             return self.u_cmd, 0.0
@@ -593,15 +666,23 @@ class AgentCore:
         loc = self.localization
         t = self._t or 0.0
         chis = {j: c for j in self.reciprocal if (c := self.chi_hat(j)) is not None}
+        p_hat, yaw_hat = loc.p_hat_ned, loc.yaw_hat_rad
+        lam = None
+        if self.rigidity is not None:
+            lam = self.rigidity.lambda_hat
+            if not self.paper000:  # angle localization is the position estimate
+                p_hat = tuple(float(x) for x in self.rigidity.loc.p_hat_ned)  # type: ignore[assignment]
+                yaw_hat = self.rigidity.yaw_hat
         return AgentStatus(
             sender=self.id,
             seq=self._seq,
             stamp_s=t,
             mode=self.config.mode,
-            p_hat_ned=loc.p_hat_ned,
-            yaw_hat_rad=loc.yaw_hat_rad,
+            p_hat_ned=p_hat,
+            yaw_hat_rad=yaw_hat,
             chi_hat_inv_m=chis,
             e_index=self.e_index,
             lambda_bar=self.lambda_bar,
             neighbours=sorted(j for j, s in self._heard.items() if t - s <= 1.0),
+            rigidity_eigenvalue=lam,
         )

@@ -25,11 +25,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from messages.agent import BearingMeasurement, OwnMeasurements
+from messages.agent import (
+    BearingMeasurement,
+    OwnMeasurements,
+    RangeMeasurement,
+    TargetMeasurement,
+)
 from messages.codec import Payload
 from onboard.agent import AgentConfig, AgentCore
 from onboard.geometry import FloatArray, IntArray, bearings_body, rot_z
-from onboard.graph import normalize_edges, reciprocal_pairs
+from onboard.graph import edge_index, normalize_edges, reciprocal_pairs, sensing_graph
 
 
 @dataclass(frozen=True)
@@ -51,6 +56,15 @@ class RunnerConfig:
     """Odometry yaw offsets are drawn uniformly in ``[-max, max]``."""
     record_every: int = 5
     seed: int = 0
+    fov_deg: float | None = None
+    """Virtual field of view: when set, a sensing edge is measured only while its target is
+    inside the camera cone and ``sensing_range_m`` (``onboard.graph.sensing_graph``)."""
+    sensing_range_m: float = math.inf
+    range_pairs: tuple[tuple[int, int], ...] = ()
+    """Pairs whose distance both ends measure (e.g. UWB), delivered with every camera frame."""
+    target_path: Callable[[float], ArrayLike] | None = None
+    """True positions ``(T, 3)`` of mission targets at ``t``: with every camera frame each agent
+    gets each target's body bearing and distance (``OwnMeasurements.targets``)."""
 
     def __post_init__(self) -> None:
         if self.dt_s <= 0 or self.duration_s <= 0 or self.camera_rate_hz <= 0:
@@ -163,8 +177,12 @@ def run(
     yaw0_rad: ArrayLike,
     runner: RunnerConfig = RunnerConfig(),
     progress: Callable[[float], None] | None = None,
+    on_record: Callable[[int, float, Sequence[AgentCore]], None] | None = None,
 ) -> Recording:
-    """Run ``len(configs)`` agent cores from the true initial state ``(p0_ned, yaw0_rad)``."""
+    """Run ``len(configs)`` agent cores from the true initial state ``(p0_ned, yaw0_rad)``.
+
+    ``on_record(r, t, cores)`` is called at every recorded sample (extra per-scenario records).
+    """
     n = len(configs)
     p0 = np.asarray(p0_ned, dtype=float).reshape(n, 3)
     y0 = np.asarray(yaw0_rad, dtype=float).reshape(n)
@@ -209,6 +227,8 @@ def run(
     v_body = [(0.0, 0.0, 0.0)] * n
     w_body = [0.0] * n
     frames: list[tuple[BearingMeasurement, ...]] = [()] * n
+    extras: list[dict[str, tuple]] = [{} for _ in range(n)]
+    edge_row = edge_index(edges)
     pending: dict[int, list[list[Payload]]] = {}
     noise_v = runner.velocity_noise_m_s
     noise_w = runner.yaw_rate_noise_rad_s
@@ -221,10 +241,20 @@ def run(
             beta, _ = bearings_body(np.asarray(p), np.asarray(yaw), edges)
             beta = _noisy_unit(beta, runner.bearing_noise_rad, rng)
             rows = beta.tolist()
+            seen = None
+            if runner.fov_deg is not None:
+                fov_edges = sensing_graph(p, yaw, runner.fov_deg, runner.sensing_range_m)
+                seen = {edge_row[(int(a), int(b))] for a, b in fov_edges if (a, b) in edge_row}
             frames = [
-                tuple(BearingMeasurement(int(edges[e, 1]), tuple(rows[e]), t) for e in edge_rows[i])
+                tuple(
+                    BearingMeasurement(int(edges[e, 1]), tuple(rows[e]), t)
+                    for e in edge_rows[i]
+                    if seen is None or e in seen
+                )
                 for i in range(n)
             ]
+            if runner.range_pairs or runner.target_path is not None:
+                extras = _extra_measurements(p, yaw, t, runner)
         inboxes = pending.pop(k, None) or [[] for _ in range(n)]
         if noise_v > 0.0 or noise_w > 0.0:
             nz = rng.standard_normal((n, 4)).tolist()
@@ -238,7 +268,12 @@ def run(
                 v = (v[0] + noise_v * e[0], v[1] + noise_v * e[1], v[2] + noise_v * e[2])
                 w = w + noise_w * e[3]
             own = OwnMeasurements(
-                t_s=t, yaw_rad=yaw[i] + offsets[i], v_body=v, yaw_rate_rad_s=w, bearings=frames[i]
+                t_s=t,
+                yaw_rad=yaw[i] + offsets[i],
+                v_body=v,
+                yaw_rate_rad_s=w,
+                bearings=frames[i],
+                **extras[i],
             )
             sp, out = core.step(t, own, inboxes[i])
             setpoints.append(sp)
@@ -251,6 +286,8 @@ def run(
                         target[r].extend(out)
         if k % runner.record_every == 0:
             _record(rec, r_idx, t, p, yaw, v_body, cores, pairs)
+            if on_record is not None:
+                on_record(r_idx, t, cores)
             r_idx += 1
         for i, sp in enumerate(setpoints):
             u, w = sp.v_body, sp.yaw_rate_rad_s
@@ -270,6 +307,30 @@ def run(
         for reason, count in core.dropped.items():
             rec.dropped[reason] = rec.dropped.get(reason, 0) + count
     return rec
+
+
+def _extra_measurements(
+    p: list[list[float]], yaw: list[float], t: float, runner: RunnerConfig
+) -> list[dict[str, tuple]]:
+    """Per agent: ranges of ``runner.range_pairs`` (both ends) and mission target measurements."""
+    n = len(p)
+    out: list[dict[str, tuple]] = [{} for _ in range(n)]
+    pa = np.asarray(p)
+    for a, b in runner.range_pairs:
+        d = float(np.linalg.norm(pa[b] - pa[a]))
+        for i, j in ((a, b), (b, a)):
+            out[i]["ranges"] = (*out[i].get("ranges", ()), RangeMeasurement(j, d, t))
+    if runner.target_path is not None:
+        targets = np.asarray(runner.target_path(t), dtype=float).reshape(-1, 3)
+        r = targets[None, :, :] - pa[:, None, :]
+        d = np.linalg.norm(r, axis=-1)
+        beta = np.einsum("nji,ntj->nti", rot_z(np.asarray(yaw)), r / d[..., None]).tolist()
+        for i in range(n):
+            out[i]["targets"] = tuple(
+                TargetMeasurement(m, tuple(beta[i][m]), float(d[i, m]), t)
+                for m in range(len(targets))
+            )
+    return out
 
 
 def _record(

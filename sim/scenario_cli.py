@@ -11,20 +11,26 @@ from typing import Annotated
 
 import typer
 
+from sim.rigidity_scenarios import RIGIDITY_SCENARIOS
 from sim.scenarios import SCENARIOS
+
+ALL_SCENARIOS = [*SCENARIOS, *RIGIDITY_SCENARIOS]
 
 
 def scenario(
-    name: Annotated[str, typer.Argument(help=f"One of: {', '.join(SCENARIOS)}")],
+    name: Annotated[str, typer.Argument(help=f"One of: {', '.join(ALL_SCENARIOS)}")],
     seed: Annotated[int, typer.Option(help="Seed of every random choice")] = 0,
-    duration: Annotated[float, typer.Option(help="Simulated seconds")] = 20.0,
+    duration: Annotated[
+        float | None, typer.Option(help="Simulated seconds [default: 20, rigidity-*: 60]")
+    ] = None,
     plot: Annotated[Path | None, typer.Option(help="Directory for PNG figures")] = None,
     json: Annotated[bool, typer.Option("--json", help="Print one JSON object")] = False,
     bearing_noise_deg: Annotated[float, typer.Option(help="Bearing noise (deg, 1 sigma)")] = 0.0,
     loss: Annotated[float, typer.Option(help="Message loss probability")] = 0.0,
     latency: Annotated[float, typer.Option(help="Extra message latency (s)")] = 0.0,
 ) -> None:
-    """Reproduce a scale-from-motion case of paper 000 (N = 6, 2 ms clock, 50 Hz bearings)."""
+    """Reproduce a scale-from-motion case of paper 000 (N = 6, 2 ms clock, 50 Hz bearings) or a
+    rigidity-maintenance simulation of paper 003 (rigidity-*)."""
     import math
 
     from rich.console import Console
@@ -33,8 +39,12 @@ def scenario(
     from sim.runner import summarize
     from sim.scenarios import run_scenario
 
-    if name not in SCENARIOS:
-        raise typer.BadParameter(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
+    if name not in ALL_SCENARIOS:
+        raise typer.BadParameter(
+            f"unknown scenario {name!r}; choose from {', '.join(ALL_SCENARIOS)}"
+        )
+    if duration is None:
+        duration = 60.0 if name in RIGIDITY_SCENARIOS else 20.0
     if duration <= 0:
         raise typer.BadParameter("duration must be positive")
     if not 0.0 <= loss < 1.0:
@@ -49,20 +59,39 @@ def scenario(
         transient=json,
     ) as progress:
         task = progress.add_task("run", total=1.0)
-        rec = run_scenario(
-            name,
-            seed=seed,
-            duration_s=duration,
-            progress=lambda f: progress.update(task, completed=f),
-            bearing_noise_rad=math.radians(bearing_noise_deg),
-            loss=loss,
-            latency_s=latency,
-        )
-    result = {"scenario": name, "seed": seed, "duration_s": duration, **summarize(rec)}
-    if plot is not None:
-        from sim.plots import plot_recording
+        if name in RIGIDITY_SCENARIOS:
+            from sim.rigidity_scenarios import scenario_result
 
-        result["plots"] = [str(p) for p in plot_recording(rec, plot, name)]
+            result = scenario_result(
+                name,
+                seed,
+                duration,
+                plot,
+                progress=lambda f: progress.update(task, completed=f),
+                bearing_noise_rad=math.radians(bearing_noise_deg),
+                loss=loss,
+                latency_s=latency,
+            )
+        else:
+            rec = run_scenario(
+                name,
+                seed=seed,
+                duration_s=duration,
+                progress=lambda f: progress.update(task, completed=f),
+                bearing_noise_rad=math.radians(bearing_noise_deg),
+                loss=loss,
+                latency_s=latency,
+            )
+    if name not in RIGIDITY_SCENARIOS:
+        result = {"scenario": name, "seed": seed, "duration_s": duration, **summarize(rec)}
+        if plot is not None:
+            from sim.plots import plot_recording
+
+            result["plots"] = [str(p) for p in plot_recording(rec, plot, name)]
+    _print(result, json, console)
+
+
+def _print(result: dict, json: bool, console) -> None:
     if json:
         typer.echo(json_lib.dumps(result))
     else:

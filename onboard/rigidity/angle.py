@@ -197,7 +197,10 @@ def _eigenpair(m: FloatArray, index: int) -> tuple[float, FloatArray]:
         raise ValueError(
             f"need more than {index} coordinates for this eigenvalue, got {m.shape[0]}"
         )
-    vals, vecs = scipy.linalg.eigh(m, subset_by_index=[0, index], check_finite=False)
+    try:
+        vals, vecs = scipy.linalg.eigh(m, subset_by_index=[0, index], check_finite=False)
+    except np.linalg.LinAlgError:  # LAPACK ?syevr can fail ("Internal Error") on rare inputs
+        vals, vecs = np.linalg.eigh(m)
     return float(vals[index]), vecs[:, index]
 
 
@@ -359,9 +362,46 @@ def weighted_eigenvalue_gradient(
     """
     prob, pos, yaw = _weighted_problem(p, yaw_rad, edges, model)
     n, dim = pos.shape
+    lam, v = _eigenpair(_weighted_gram(prob.geo, n, dim, prob.w_angle), trivial_motion_count(dim))
+    _, grad_p, grad_yaw = _form_gradient(prob, pos, yaw, v.reshape(n, dim))
+    return lam, grad_p, grad_yaw
+
+
+def weighted_form_gradient(
+    p: ArrayLike, yaw_rad: ArrayLike, edges: ArrayLike, model: SensingModel, v: ArrayLike
+) -> tuple[float, FloatArray, FloatArray]:
+    """Quadratic form ``v^T M_w v`` at a *given* ``v`` and its gradient w.r.t. positions and yaws.
+
+    The same expression as :func:`weighted_eigenvalue_gradient` (paper 003 eq. 21) with ``v``
+    held fixed instead of taken from an eigen-solver: what an agent evaluates with its share of
+    a distributed eigenvector estimate. ``v`` is ``(N, d)`` or ``(d N,)``, not necessarily unit.
+    Returns ``(v^T M_w v, grad_p (N, d), grad_yaw (N,))``.
+    """
+    prob, pos, yaw = _weighted_problem(p, yaw_rad, edges, model)
+    vv = np.asarray(v, dtype=float).reshape(pos.shape)
+    return _form_gradient(prob, pos, yaw, vv)
+
+
+def weighted_gram_and_form_gradient(
+    p: ArrayLike, yaw_rad: ArrayLike, edges: ArrayLike, model: SensingModel, v: ArrayLike
+) -> tuple[FloatArray, float, FloatArray, FloatArray]:
+    """``M_w`` and :func:`weighted_form_gradient` from one evaluation of the geometry.
+
+    What a distributed estimator needs per step: ``M_w v`` for the power iteration and the
+    gradient of ``v^T M_w v`` for the controller. Returns ``(M_w, value, grad_p, grad_yaw)``.
+    """
+    prob, pos, yaw = _weighted_problem(p, yaw_rad, edges, model)
+    gram = _weighted_gram(prob.geo, *pos.shape, prob.w_angle)
+    vv = np.asarray(v, dtype=float).reshape(pos.shape)
+    return (gram, *_form_gradient(prob, pos, yaw, vv))
+
+
+def _form_gradient(
+    prob: _WeightedProblem, pos: FloatArray, yaw: FloatArray, vv: FloatArray
+) -> tuple[float, FloatArray, FloatArray]:
+    """``v^T M_w v`` and ``d(v^T M_w v)/d(p, yaw)`` at fixed ``v`` (module docstring)."""
+    n, dim = pos.shape
     geo = prob.geo
-    lam, v = _eigenpair(_weighted_gram(geo, n, dim, prob.w_angle), trivial_motion_count(dim))
-    vv = v.reshape(n, dim)
     g = _projections(geo, vv)
     grad_p = _rotation_term(geo, vv, 2.0 * prob.w_angle * g)
 
@@ -383,4 +423,4 @@ def weighted_eigenvalue_gradient(
     np.add.at(grad_p, head, coef[:, None] * dh_dr)
     np.add.at(grad_p, tail, -coef[:, None] * dh_dr)
     grad_yaw = np.bincount(tail, coef * dh_dyaw, minlength=n)
-    return lam, grad_p, grad_yaw
+    return float(np.dot(prob.w_angle, g2)), grad_p, grad_yaw
