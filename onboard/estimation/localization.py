@@ -32,6 +32,8 @@ Vec3 = tuple[float, float, float]
 
 K_L = 100.0
 K_D = 1.0
+MIN_ESTIMATED_DISTANCE_M = 1e-6
+"""Below this the estimated bearing is undefined and the term contributes nothing."""
 
 
 def bearing_term_gradient(
@@ -44,6 +46,8 @@ def bearing_term_gradient(
     """
     r0, r1, r2 = p_j[0] - p_i[0], p_j[1] - p_i[1], p_j[2] - p_i[2]
     d = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    if not d > MIN_ESTIMATED_DISTANCE_M:  # coincident (or non-finite) estimates: no bearing
+        return (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0)
     c, s = math.cos(yaw_i_rad), math.sin(yaw_i_rad)
     b0, b1, b2 = (c * r0 + s * r1) / d, (-s * r0 + c * r1) / d, r2 / d  # betahat = R^T r / d
     x0, x1, x2 = b0 - beta_ij[0], b1 - beta_ij[1], b2 - beta_ij[2]

@@ -106,3 +106,15 @@ def test_filter_recovers_configuration_with_correct_scale():
         p_hat, yaw_hat = _filter_step(p_hat, yaw_hat, beta_meas, d_true, 0.002)
     assert localization_error(p_hat, p) < 1e-3
     assert scale_ratio(p_hat, p) == pytest.approx(1.0, abs=1e-3)
+
+
+def test_bearing_term_is_zero_not_nan_for_coincident_estimates():
+    """Two estimates at the same point define no bearing: the term must vanish, not divide by 0."""
+    import math
+
+    from onboard.estimation.localization import bearing_term_gradient
+
+    g_i, g_yaw, g_j = bearing_term_gradient((1.0, 2.0, 3.0), 0.3, (1.0, 2.0, 3.0), (1.0, 0.0, 0.0))
+    assert g_i == (0.0, 0.0, 0.0) and g_yaw == 0.0 and g_j == (0.0, 0.0, 0.0)
+    g_i, g_yaw, _ = bearing_term_gradient((0.0, 0.0, 0.0), 0.0, (2.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    assert all(math.isfinite(x) for x in (*g_i, g_yaw)) and g_yaw != 0.0
