@@ -206,14 +206,8 @@ class MavlinkListener:
 
     def wait_for(self, predicate: Callable[[MavlinkState], bool], timeout_s: float) -> bool:
         """Block until ``predicate(state)`` (evaluated under the lock) holds or time runs out."""
-        deadline = self.clock() + timeout_s
-        with self.lock:
-            while not predicate(self.state):
-                left = deadline - self.clock()
-                if left <= 0:
-                    return False
-                self.lock.wait(min(left, 0.1))
-            return True
+        with self.lock:  # every update notifies the condition
+            return self.lock.wait_for(lambda: predicate(self.state), timeout_s)
 
     def acks_since(self, t_s: float) -> list[Ack]:
         with self.lock:

@@ -241,11 +241,5 @@ class ZenohListener:
             hook(key, alive, t_wall)
 
     def wait_for(self, predicate: Callable[[ZenohState], bool], timeout_s: float) -> bool:
-        deadline = self.clock() + timeout_s
-        with self.lock:
-            while not predicate(self.state):
-                left = deadline - self.clock()
-                if left <= 0:
-                    return False
-                self.lock.wait(min(left, 0.1))
-            return True
+        with self.lock:  # every update notifies the condition
+            return self.lock.wait_for(lambda: predicate(self.state), timeout_s)
