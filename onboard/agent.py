@@ -32,6 +32,7 @@ Explicit Euler with the step's ``dt`` everywhere (the paper's loop is 2 ms).
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Iterable
 from typing import Literal
 
@@ -56,9 +57,12 @@ from onboard.estimation.consensus import PIConsensus
 from onboard.estimation.localization import LocalizationFilter
 from onboard.estimation.relative_yaw import RelativeYawEdge
 from onboard.estimation.sfm_observer import SfmEdge, WindowAverage, excitation
+from onboard.estimation.time_alignment import SignalHistory
 from onboard.rigidity_layer import RigidityLayer
 
 Vec3 = tuple[float, float, float]
+MAX_SFM_STEP_S = 0.02
+"""Longest interval one explicit-Euler step of an SfM observer may span (``h dt = 0.2``)."""
 Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
 
 
@@ -91,11 +95,15 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     # localization (eq. 6)
     k_loc_bearing: float = 100.0
     k_loc_distance: float = 1.0
-    # consensus (PI estimator) and the sharing of w_l between neighbours
+    # consensus (PI estimator) and the sharing of w_l between neighbours. Peer values arrive one
+    # network delay ``tau`` late, and a delayed consensus ``x' = -k L x(t - tau)`` is stable only
+    # while ``k mu_max tau < pi/2`` (Olfati-Saber & Murray 2004; ``mu_max`` the largest Laplacian
+    # eigenvalue, 6-8 in the demo graphs). ``k_p = 20`` failed at 60 ms; ``k_p = k_i = 1`` holds
+    # past 200 ms with 10% loss, at the price of a slower case 4 (6.5 s -> 7-9 s to converge).
     consensus_gamma: float = 50.0
-    consensus_k_p: float = 20.0
-    consensus_k_i: float = 20.0
-    k_w_l_coupling: float = 5.0
+    consensus_k_p: float = 1.0
+    consensus_k_i: float = 1.0
+    k_w_l_coupling: float = 2.0
     w_l_max_rad_s: float = 0.3
     """Bound of the active rotation rate ``w_l`` of eq. 13-15 (anti-windup, not in the paper)."""
     excitation_relay_every: int = 5
@@ -227,6 +235,14 @@ class AgentCore:
                 window=WindowAverage(cfg.e_window_s),
             )
         self.yaw_edges = {j: RelativeYawEdge() for j in self.reciprocal}
+        # time alignment of the SfM observers (onboard.estimation.time_alignment): own and
+        # peer ``(u_x, u_y, u_z, w, yaw)`` histories, the observer's own clock, frames to replay
+        self._own_hist = SignalHistory(angle_index=4)
+        self._motion_hist = {j: SignalHistory(angle_index=4) for j in self.running}
+        self._sfm_t: dict[int, float] = {}
+        self._sfm_frames: dict[int, deque[tuple[float, Vec3]]] = {
+            j: deque(maxlen=64) for j in self.running
+        }
         self.desired = {(i, j): tuple(b) for i, j, b in cfg.desired_beta_body}
 
         # latest peer data
@@ -291,6 +307,9 @@ class AgentCore:
 
     def _on_motion(self, j: int, msg: MotionShare) -> None:
         self._motion[j] = msg
+        hist = self._motion_hist.get(j)
+        if hist is not None:
+            hist.add(msg.stamp_s, (*msg.v_body, msg.yaw_rate_rad_s, msg.yaw_rad))
 
     def _on_localization(self, j: int, msg: LocalizationState) -> None:
         self._loc[j] = msg
@@ -371,7 +390,8 @@ class AgentCore:
             self._drop("nonfinite_own")
             return Setpoint(v_body=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0), []
 
-        frame = self._take_bearings(own, yaw_own, outbox)
+        self._take_bearings(own, yaw_own, outbox)
+        self._own_hist.add(t_s, (*u_i, w_i, yaw_own))
 
         # relative velocity on reciprocal edges: u_ij = iR_j u_j - u_i (eq. 7)
         rel: dict[int, tuple[float, Vec3]] = {}
@@ -386,17 +406,8 @@ class AgentCore:
             uj = _rotz(psi, m.v_body)
             rel[j] = (psi, (uj[0] - u_i[0], uj[1] - u_i[1], uj[2] - u_i[2]))
 
-        # SfM observers (eq. 8) on the edges this agent runs
-        ran = []
-        for j, edge in self.sfm.items():
-            if j not in rel:
-                continue
-            u_ij = rel[j][1]
-            if frame and j in self._beta_out:
-                stamp, beta = self._beta_out[j]
-                edge.new_bearing(beta, stamp, t_s, u_ij, w_i)
-            edge.step(t_s, dt, u_ij, w_i)
-            ran.append((j, edge))
+        # SfM observers (eq. 8) on the edges this agent runs, time-aligned with the peer
+        ran = [(j, edge) for j, edge in self.sfm.items() if self._advance_sfm(j, edge, t_s)]
         if ran:
             outbox.append(
                 SfmEstimate(
@@ -481,6 +492,8 @@ class AgentCore:
         stamp = max(s for _, s, _ in fresh)
         for target, s, beta in fresh:
             self._beta_out[target] = (s, beta)
+            if target in self._sfm_frames:
+                self._sfm_frames[target].append((s, beta))
             if target in self.yaw_edges:
                 self.yaw_edges[target].add_own(s, yaw_own, beta)
         outbox.append(
@@ -493,6 +506,41 @@ class AgentCore:
                 beta_body=[b for _, _, b in fresh],
             )
         )
+        return True
+
+    def _advance_sfm(self, j: int, edge: SfmEdge, t_s: float) -> bool:
+        """Advance the observer of edge ``(self, j)`` to ``tau = min(t, newest stamp of j's
+        motion)``, replaying own samples and camera frames in between with ``u_j`` interpolated
+        at the same instants (:mod:`onboard.estimation.time_alignment`). ``False`` while ``j``'s
+        motion is stale or the relative yaw unknown."""
+        peer = self._motion_hist[j]
+        tau1 = min(t_s, peer.newest_s)
+        if not self._fresh(tau1, t_s) or self.yaw_edges[j].offset_rad is None:
+            return False
+        tau0 = self._sfm_t.get(j, tau1)
+        if tau1 - tau0 > self.config.peer_timeout_s:  # after a gap: restart, do not integrate
+            tau0 = tau1
+        self._sfm_t[j] = tau1
+        times = self._own_hist.times_in(tau0, tau1)
+        if not times or times[-1] < tau1:
+            times.append(tau1)
+        frames = self._sfm_frames[j]
+        while len(frames) > 1 and frames[1][0] <= tau0:  # left over from a gap: keep the newest
+            frames.popleft()
+        prev = tau0
+        for s in times:
+            mine, theirs = self._own_hist.at(s), peer.at(s)
+            ds, prev = s - prev, s
+            if mine is None or theirs is None or ds > MAX_SFM_STEP_S:
+                continue  # a hole in the own history (a skipped tick): do not integrate across
+            psi = self.yaw_edges[j].psi(mine[4], theirs[4])
+            assert psi is not None
+            uj = _rotz(psi, (theirs[0], theirs[1], theirs[2]))
+            u_ij = (uj[0] - mine[0], uj[1] - mine[1], uj[2] - mine[2])
+            while frames and frames[0][0] <= s:
+                stamp, beta = frames.popleft()
+                edge.new_bearing(beta, stamp, s, u_ij, mine[3])
+            edge.step(s, ds, u_ij, mine[3])
         return True
 
     def chi_hat(self, j: int) -> float | None:

@@ -34,6 +34,13 @@ K_L = 100.0
 K_D = 1.0
 MIN_ESTIMATED_DISTANCE_M = 1e-6
 """Below this the estimated bearing is undefined and the term contributes nothing."""
+MAX_CORRECTION_M_S = 50.0
+MAX_CORRECTION_RAD_S = 10.0
+"""Bounds of the gradient-descent part of ``phat_i'`` and ``psihat_i'``. The distance term's
+gradient grows with the cube of the distances, so explicit Euler is stable only while
+``k_d |(|r|^2 - dhat^2)| dt < 2``: with a 5 ms step and an SfM distance that has drifted to 50 m
+(before the observer converges) one step overshoots and the estimate runs off to NaN. Bounding
+the correction speed keeps the filter finite; near its fixed point the bounds are inactive."""
 
 
 def bearing_term_gradient(
@@ -73,6 +80,8 @@ class LocalizationFilter:
     yaw_hat_rad: float
     k_l: float = K_L
     k_d: float = K_D
+    max_correction_m_s: float = MAX_CORRECTION_M_S
+    max_correction_rad_s: float = MAX_CORRECTION_RAD_S
 
     def step(
         self,
@@ -104,9 +113,14 @@ class LocalizationFilter:
             d0, d1, d2 = d0 + gd[0], d1 + gd[1], d2 + gd[2]
         c, s = math.cos(yaw), math.sin(yaw)
         kl, kd = self.k_l, self.k_d
+        f0, f1, f2 = kl * g0 + kd * d0, kl * g1 + kd * d1, kl * g2 + kd * d2
+        norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        if norm > self.max_correction_m_s:
+            f0, f1, f2 = (f * self.max_correction_m_s / norm for f in (f0, f1, f2))
+        f_yaw = max(-self.max_correction_rad_s, min(self.max_correction_rad_s, kl * g_yaw))
         self.p_hat_ned = (
-            p[0] + dt * (c * v_body[0] - s * v_body[1] - kl * g0 - kd * d0),
-            p[1] + dt * (s * v_body[0] + c * v_body[1] - kl * g1 - kd * d1),
-            p[2] + dt * (v_body[2] - kl * g2 - kd * d2),
+            p[0] + dt * (c * v_body[0] - s * v_body[1] - f0),
+            p[1] + dt * (s * v_body[0] + c * v_body[1] - f1),
+            p[2] + dt * (v_body[2] - f2),
         )
-        self.yaw_hat_rad = math.remainder(yaw + dt * (yaw_rate_rad_s - kl * g_yaw), math.tau)
+        self.yaw_hat_rad = math.remainder(yaw + dt * (yaw_rate_rad_s - f_yaw), math.tau)

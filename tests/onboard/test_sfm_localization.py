@@ -2,6 +2,8 @@
 agents' blocks add up to the gradient of the global cost, and the filter recovers the correct
 scale from distances."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -51,13 +53,13 @@ def test_edge_gradients_match_finite_differences():
     assert np.allclose(distance_term_gradient(tuple(p[0]), tuple(p[1]), d_hat), fd_d, atol=1e-6)
 
 
-def _filter_step(p_hat, yaw_hat, beta_meas, d_hat, dt):
+def _filter_step(p_hat, yaw_hat, beta_meas, d_hat, dt, **bounds):
     """Every agent advances its own block with only its local data (zero velocity)."""
     pairs = {tuple(e) for e in reciprocal_pairs(EDGES)}
     rows = {tuple(e): k for k, e in enumerate(EDGES)}
     new_p, new_yaw = p_hat.copy(), yaw_hat.copy()
     for i in range(len(p_hat)):
-        f = LocalizationFilter(tuple(p_hat[i]), yaw_hat[i])
+        f = LocalizationFilter(tuple(p_hat[i]), yaw_hat[i], **bounds)
         out = [(tuple(p_hat[j]), tuple(beta_meas[rows[(i, j)]])) for a, j in EDGES if a == i]
         inn = [
             (tuple(p_hat[a]), yaw_hat[a], tuple(beta_meas[rows[(a, i)]]))
@@ -81,7 +83,8 @@ def test_agent_blocks_sum_to_the_global_gradient():
     beta_meas, _ = bearings_body(p + rng.normal(size=p.shape) * 0.3, yaw + 0.1, EDGES)
     d_hat = rng.uniform(1, 3, len(reciprocal_pairs(EDGES)))
     dt = 1e-7
-    p1, y1 = _filter_step(p, yaw, beta_meas, d_hat, dt)
+    unbounded = {"max_correction_m_s": math.inf, "max_correction_rad_s": math.inf}
+    p1, y1 = _filter_step(p, yaw, beta_meas, d_hat, dt, **unbounded)
     step = np.concatenate([(p1 - p).ravel(), y1 - yaw]) / dt
     x0 = np.concatenate([p.ravel(), yaw])
 
@@ -118,3 +121,21 @@ def test_bearing_term_is_zero_not_nan_for_coincident_estimates():
     assert g_i == (0.0, 0.0, 0.0) and g_yaw == 0.0 and g_j == (0.0, 0.0, 0.0)
     g_i, g_yaw, _ = bearing_term_gradient((0.0, 0.0, 0.0), 0.0, (2.0, 0.0, 0.0), (0.0, 1.0, 0.0))
     assert all(math.isfinite(x) for x in (*g_i, g_yaw)) and g_yaw != 0.0
+
+
+def test_correction_speed_is_bounded_along_the_gradient():
+    """A far-off SfM distance makes the quartic term's gradient huge; one step must stay bounded
+    (explicit Euler diverged to NaN in the demo) and still point down the gradient."""
+    from onboard.estimation.localization import MAX_CORRECTION_M_S, LocalizationFilter
+
+    p_i, p_j, d_hat = (0.0, 0.0, 0.0), (5.0, 0.0, 0.0), 50.0
+    free = LocalizationFilter(p_i, 0.0, max_correction_m_s=math.inf)
+    bounded = LocalizationFilter(p_i, 0.0)
+    for f in (free, bounded):
+        f.step(0.005, (0.0, 0.0, 0.0), 0.0, [], [], [(p_j, d_hat)])
+    step_free, step_bounded = np.array(free.p_hat_ned), np.array(bounded.p_hat_ned)
+    assert np.linalg.norm(step_free) > 10 * MAX_CORRECTION_M_S * 0.005
+    assert np.linalg.norm(step_bounded) == pytest.approx(MAX_CORRECTION_M_S * 0.005)
+    assert np.allclose(
+        step_bounded / np.linalg.norm(step_bounded), step_free / np.linalg.norm(step_free)
+    )
