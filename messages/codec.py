@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection, Iterable
+from functools import lru_cache
 from typing import Any, TypeVar
 
 import msgspec
@@ -46,7 +47,8 @@ _encoder = msgspec.msgpack.Encoder()
 
 def encode(payload: Payload) -> bytes:
     """Serialize a payload to MessagePack bytes (raises :class:`MessageError` on NaN/inf)."""
-    _check_finite(payload, "payload")
+    if not _all_finite(payload):
+        _check_finite(payload, "payload")
     return _encoder.encode(payload)
 
 
@@ -64,20 +66,30 @@ def decode(
     if len(data) > MAX_PAYLOAD_BYTES:
         raise MessageError("oversize", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
     try:
+        msg = _decoder(kind).decode(data)
+    except msgspec.DecodeError as exc:  # (ValidationError is a DecodeError)
+        # a payload of another schema version is reported as such, not as malformed: only on
+        # this slow path is the version read from the raw map
         version = _peek_version(data)
         if version is not None and version != SCHEMA_VERSION:
-            raise MessageError("version", f"schema version {version}, expected {SCHEMA_VERSION}")
-        msg = msgspec.msgpack.decode(bytes(data), type=kind)
-    except msgspec.ValidationError as exc:
-        raise MessageError("malformed", str(exc)) from None
-    except msgspec.DecodeError as exc:
+            raise MessageError(
+                "version", f"schema version {version}, expected {SCHEMA_VERSION}"
+            ) from None
         raise MessageError("malformed", str(exc)) from None
     if msg.version != SCHEMA_VERSION:
         raise MessageError("version", f"schema version {msg.version}, expected {SCHEMA_VERSION}")
-    _check_finite(msg, type(msg).__name__)
+    if not _all_finite(msg):  # fast check; the slow one names the field
+        _check_finite(msg, type(msg).__name__)
     if known_senders is not None and msg.sender not in known_senders:
         raise MessageError("unknown_sender", f"sender {msg.sender} is not in the fleet")
     return msg
+
+
+@lru_cache(maxsize=64)
+def _decoder(kind: Any) -> msgspec.msgpack.Decoder:
+    """One decoder per payload type: ``msgspec.msgpack.decode(data, type=...)`` rebuilds its
+    type information on every call for a union of tagged structs (100 us instead of 2 us)."""
+    return msgspec.msgpack.Decoder(kind)
 
 
 def _peek_version(data: bytes | bytearray | memoryview) -> int | None:
@@ -90,6 +102,30 @@ def _peek_version(data: bytes | bytearray | memoryview) -> int | None:
     if isinstance(raw, dict) and isinstance(raw.get("version"), int):
         return int(raw["version"])
     return None
+
+
+def _all_finite(value: Any) -> bool:
+    """Whether every float inside ``value`` is finite: the hot path of :func:`decode` (no field
+    names are built; :func:`_check_finite` names the culprit once this says no)."""
+    kind = type(value)
+    if kind is float:
+        return math.isfinite(value)
+    if kind is list or kind is tuple:
+        items: Iterable[Any] = value
+    elif kind is dict:
+        items = value.values()
+    elif isinstance(value, msgspec.Struct):
+        items = (getattr(value, name) for name in value.__struct_fields__)
+    else:
+        return True
+    for item in items:
+        k = type(item)
+        if k is float:
+            if not math.isfinite(item):
+                return False
+        elif k is not int and k is not str and k is not bool and not _all_finite(item):
+            return False
+    return True
 
 
 def _check_finite(value: Any, where: str) -> None:

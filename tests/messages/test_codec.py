@@ -69,3 +69,31 @@ def test_keys():
             parse_key(bad)
     with pytest.raises(ValueError):
         key("a/b", 1, "state")
+
+
+class Nested(Payload, tag="test.nested"):
+    names: list[str]
+    rows: list[list[float]]
+    table: dict[str, tuple[float, float]] = msgspec.field(default_factory=dict)
+    pings: list[Ping] = msgspec.field(default_factory=list)
+
+
+@pytest.mark.parametrize(
+    ("bad", "where"),
+    [
+        ({"rows": [[1.0], [2.0, float("inf")]]}, "rows[1][1]"),
+        ({"table": {"a": (1.0, float("nan"))}}, "table['a'][1]"),
+        ({"pings": [Ping(sender=1, value=1.0, items=[float("-inf")])]}, "pings[0].items[0]"),
+    ],
+)
+def test_nonfinite_anywhere_inside_is_found_and_named(bad, where):
+    fields = {"sender": 1, "names": ["x"], "rows": [[1.0]], **bad}
+    with pytest.raises(MessageError) as err:
+        encode(Nested(**fields))
+    assert err.value.reason == "nonfinite" and where in err.value.detail
+    raw = msgspec.msgpack.encode(Nested(**fields))  # a peer that does not check what it sends
+    with pytest.raises(MessageError, match="nonfinite"):
+        decode(raw, Nested)
+    assert decode(encode(Nested(sender=1, names=["x"], rows=[[1.0, 2.0]])), Nested).rows == [
+        [1.0, 2.0]
+    ]
