@@ -21,7 +21,9 @@ RANSAC (paper 002 side panel, eq. 35): hypotheses are exact conics through 5 ran
 points; the iteration count is ``N = log(1-p) / log(1-(1-eps)^n)``, recomputed whenever a larger
 consensus set is found (``eps`` = current outlier ratio, ``n = 5``). The final model is the direct
 least-squares ellipse fit of Fitzgibbon et al. (paper 002 ref. [24]) on the inliers, in the
-numerically stable form of Halir and Flusser.
+numerically stable form of Halir and Flusser. :func:`robust_ellipse` tries that direct fit on all
+points first and runs RANSAC only when it leaves too many outliers (the common, unoccluded case
+then costs one fit instead of hundreds of hypotheses).
 
 Pure numpy, vectorized over hypotheses.
 """
@@ -37,6 +39,9 @@ from numpy.typing import ArrayLike
 from onboard.geometry import FloatArray
 
 CONIC_SAMPLE_SIZE = 5
+# Q = [[a, b/2, d/2], [b/2, c, e/2], [d/2, e/2, f]] from (a, b, c, d, e, f), row by row.
+_CONIC_INDEX = np.array([0, 1, 3, 1, 2, 4, 3, 4, 5])
+_CONIC_SCALE = np.array([1.0, 0.5, 0.5, 0.5, 1.0, 0.5, 0.5, 0.5, 1.0])
 
 
 def ransac_iterations(p_success: float, outlier_ratio: float, n_sample: int) -> float:
@@ -57,15 +62,8 @@ def ransac_iterations(p_success: float, outlier_ratio: float, n_sample: int) -> 
 
 def conic_matrix(coeffs: ArrayLike) -> FloatArray:
     """``(a, b, c, d, e, f)`` of ``a u^2 + b uv + c v^2 + d u + e v + f = 0`` -> symmetric ``Q``."""
-    a, b, c, d, e, f = np.moveaxis(np.asarray(coeffs, dtype=float), -1, 0)
-    return np.stack(
-        [
-            np.stack([a, b / 2, d / 2], -1),
-            np.stack([b / 2, c, e / 2], -1),
-            np.stack([d / 2, e / 2, f], -1),
-        ],
-        axis=-2,
-    )
+    c = np.asarray(coeffs, dtype=float)
+    return (c[..., _CONIC_INDEX] * _CONIC_SCALE).reshape(*c.shape[:-1], 3, 3)
 
 
 def conic_from_ellipse(
@@ -106,23 +104,33 @@ class EllipseGeometry:
 
 
 def ellipse_geometry(q: ArrayLike) -> EllipseGeometry:
-    """Inverse of :func:`conic_from_ellipse`; raises ``ValueError`` if ``q`` is not a real ellipse."""
+    """Inverse of :func:`conic_from_ellipse`; raises ``ValueError`` if ``q`` is not a real ellipse.
+
+    Closed form for the 2x2 block ``A = [[a, b], [b, c]]``: centre ``-A^-1 (d, e)``; with
+    ``k = -(f + (d, e) . centre)``, the eigenvalues of ``A / k`` are ``1 / semi-axis^2``.
+    """
     q = np.asarray(q, dtype=float)
-    a2 = q[:2, :2]
-    if np.linalg.det(a2) <= 0.0:
+    a, b, c = float(q[0, 0]), float(q[0, 1]), float(q[1, 1])
+    d, e, f = float(q[0, 2]), float(q[1, 2]), float(q[2, 2])
+    det = a * c - b * b
+    if det <= 0.0:
         raise ValueError("conic is not an ellipse")
-    center = -np.linalg.solve(a2, q[:2, 2])
-    k = -(q[2, 2] + q[:2, 2] @ center)  # value so that (x-c)^T A (x-c) = k
-    w, v = np.linalg.eigh(a2 / k)
-    if np.any(w <= 0.0):
+    cu, cv = (b * e - c * d) / det, (b * d - a * e) / det
+    k = -(f + d * cu + e * cv)  # value so that (x-c)^T A (x-c) = k
+    mean, half_gap = 0.5 * (a + c), math.hypot(0.5 * (a - c), b)
+    w_small, w_large = (mean - half_gap) / k, (mean + half_gap) / k
+    if k == 0.0 or min(w_small, w_large) <= 0.0:
         raise ValueError("conic is an imaginary ellipse")
-    # smallest eigenvalue <-> major axis
-    major = v[:, 0]
+    # smallest eigenvalue <-> major axis; eigenvector of A for it: (b, l - a) or (l - c, b)
+    lam = mean - half_gap if k > 0.0 else mean + half_gap
+    vx, vy = (b, lam - a) if abs(a - lam) > abs(c - lam) else (lam - c, b)
+    if vx == 0.0 and vy == 0.0:  # a circle: any direction
+        vx = 1.0
     return EllipseGeometry(
-        center=center,
-        semi_major=float(1.0 / math.sqrt(w[0])),
-        semi_minor=float(1.0 / math.sqrt(w[1])),
-        major_angle_rad=float(math.atan2(major[1], major[0])),
+        center=np.array([cu, cv]),
+        semi_major=float(1.0 / math.sqrt(min(w_small, w_large))),
+        semi_minor=float(1.0 / math.sqrt(max(w_small, w_large))),
+        major_angle_rad=float(math.atan2(vy, vx)),
     )
 
 
@@ -169,10 +177,15 @@ def fit_ellipse_direct(points: ArrayLike) -> FloatArray:
     if pts.shape[0] < CONIC_SAMPLE_SIZE:
         raise ValueError("need at least 5 points for an ellipse")
     t = _normalizer(pts)
-    p = _apply(t, pts)
+    q = t.T @ _fit_direct_conditioned(_apply(t, pts)) @ t
+    return q / np.linalg.norm(q)
+
+
+def _fit_direct_conditioned(p: FloatArray) -> FloatArray:
+    """:func:`fit_ellipse_direct` of points already centred and scaled to about unit size."""
     d = _design(p)
-    d1, d2 = d[:, :3], d[:, 3:]
-    s1, s2, s3 = d1.T @ d1, d1.T @ d2, d2.T @ d2
+    s = d.T @ d
+    s1, s2, s3 = s[:3, :3], s[:3, 3:], s[3:, 3:]
     try:
         tm = -np.linalg.solve(s3, s2.T)
     except np.linalg.LinAlgError:
@@ -186,8 +199,7 @@ def fit_ellipse_direct(points: ArrayLike) -> FloatArray:
     if ok.size == 0:
         raise ValueError("no ellipse fits these points")
     a1 = v[:, ok[np.argmin(np.abs(np.real(w[ok])))]]
-    q_norm = conic_matrix(np.concatenate([a1, tm @ a1]))
-    q = t.T @ q_norm @ t
+    q = conic_matrix(np.concatenate([a1, tm @ a1]))
     return q / np.linalg.norm(q)
 
 
@@ -201,7 +213,7 @@ def sampson_distance(q: ArrayLike, points: ArrayLike) -> FloatArray:
     ph = np.concatenate([pts, np.ones((pts.shape[0], 1))], axis=1)
     qp = np.einsum("...ij,nj->...ni", q, ph)
     alg = np.einsum("...ni,ni->...n", qp, ph)
-    grad = 2.0 * np.linalg.norm(qp[..., :2], axis=-1)
+    grad = 2.0 * np.sqrt(qp[..., 0] ** 2 + qp[..., 1] ** 2)
     return np.abs(alg) / np.maximum(grad, 1e-300)
 
 
@@ -257,14 +269,62 @@ def ransac_ellipse(
             needed = ransac_iterations(p_success, 1.0 - best_count / n, CONIC_SAMPLE_SIZE)
     if best_q is None or best_count < CONIC_SAMPLE_SIZE:
         raise ValueError("no ellipse found")
-    inliers = sampson_distance(best_q, p) < thr
-    q_fit = fit_ellipse_direct(p[inliers])
+    return _refit_on_inliers(p, t, sampson_distance(best_q, p) < thr, thr, done)
+
+
+def _refit_on_inliers(
+    p: FloatArray, t: FloatArray, inliers: FloatArray, thr: float, iterations: int
+) -> RansacEllipse:
+    """Direct fit on the inliers of normalized points ``p`` (``t`` undoes the normalization),
+    once more if the refitted conic changes the inlier set."""
+    q_fit = _fit_direct_conditioned(p[inliers])
     new_inliers = sampson_distance(q_fit, p) < thr
     if new_inliers.sum() >= CONIC_SAMPLE_SIZE and not np.array_equal(new_inliers, inliers):
         inliers = new_inliers
-        q_fit = fit_ellipse_direct(p[inliers])
+        q_fit = _fit_direct_conditioned(p[inliers])
     q_out = t.T @ q_fit @ t
-    return RansacEllipse(conic=q_out / np.linalg.norm(q_out), inliers=inliers, iterations=done)
+    return RansacEllipse(
+        conic=q_out / np.linalg.norm(q_out), inliers=inliers, iterations=iterations
+    )
+
+
+def robust_ellipse(
+    points: ArrayLike,
+    threshold: float,
+    rng: np.random.Generator,
+    *,
+    direct_inlier_ratio: float = 0.95,
+    p_success: float = 0.99,
+    max_iterations: int = 256,
+) -> RansacEllipse:
+    """Ellipse through ``points``: the direct fit when it is already clean, else RANSAC.
+
+    A clean contour (a disc seen whole) needs no random search: the direct least-squares fit
+    of all points (Fitzgibbon) leaves at least ``direct_inlier_ratio`` of them within
+    ``threshold`` (Sampson distance), and is then refitted on its inliers exactly as the last
+    step of :func:`ransac_ellipse` (``iterations = 0``). Otherwise (occlusion, a blob merged
+    with something of the same colour) the adaptive 5-point RANSAC of paper 002 (eq. 35) runs.
+    Same result as :func:`ransac_ellipse` up to the random draws when there are no outliers;
+    raises ``ValueError`` as it does.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.shape[0] < CONIC_SAMPLE_SIZE:
+        raise ValueError(f"need at least 5 points, got {pts.shape[0]}")
+    t = _normalizer(pts)
+    p = _apply(t, pts)
+    thr = threshold * t[0, 0]
+    try:
+        q = _fit_direct_conditioned(p)
+    except ValueError:
+        q = None
+    if q is not None:
+        inliers = sampson_distance(q, p) < thr
+        if inliers.all():  # the refit on the inliers would be this very fit
+            q_out = t.T @ q @ t
+            return RansacEllipse(conic=q_out / np.linalg.norm(q_out), inliers=inliers, iterations=0)
+        if float(np.mean(inliers)) >= direct_inlier_ratio:
+            return _refit_on_inliers(p, t, inliers, thr, 0)
+    return ransac_ellipse(pts, threshold, rng, p_success=p_success, max_iterations=max_iterations)
 
 
 def circle_conic(center_cam: ArrayLike, normal_cam: ArrayLike, radius: float) -> FloatArray:

@@ -67,11 +67,11 @@ def contour_normals(contour_px: ArrayLike) -> FloatArray:
     """Unit outward normals of a closed, ordered contour ``(N, 2)`` (orientation from the sign of
     its shoelace area; tangent from a 5-point central difference)."""
     p = np.asarray(contour_px, dtype=float)
-    tangent = np.roll(p, -1, axis=0) - np.roll(p, 1, axis=0)
-    tangent += 0.5 * (np.roll(p, -2, axis=0) - np.roll(p, 2, axis=0))
-    norm = np.linalg.norm(tangent, axis=1, keepdims=True)
-    tangent = tangent / np.where(norm > 0.0, norm, 1.0)
-    x, y = p[:, 0], p[:, 1]
-    signed_area = 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+    k = np.arange(p.shape[0])
+    nxt, nxt2 = (k + 1) % p.shape[0], (k + 2) % p.shape[0]
+    tangent = p[nxt] - p[k - 1] + 0.5 * (p[nxt2] - p[k - 2])  # negative indices wrap
+    norm = np.sqrt(np.sum(tangent * tangent, axis=1, keepdims=True))
+    tangent /= np.where(norm > 0.0, norm, 1.0)
+    signed_area = 0.5 * float(np.sum(p[:, 0] * p[nxt, 1] - p[nxt, 0] * p[:, 1]))
     orient = 1.0 if signed_area >= 0.0 else -1.0
-    return orient * np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)
+    return orient * tangent[:, ::-1] * np.array([1.0, -1.0])

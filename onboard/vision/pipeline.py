@@ -51,13 +51,14 @@ class VisionPipeline:
             frame = frame[:, :, 0]
         found: list[Detection] = []
         if frame.ndim == 3:
-            found += self.discs.detect(frame, cv2.cvtColor(frame, cv2.COLOR_BGR2HSV))
-            gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+            if self.discs.specs:
+                found += self.discs.detect(frame, cv2.cvtColor(frame, cv2.COLOR_BGR2HSV))
+            if self.tags.specs:
+                found += self.tags.detect(frame, cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
         else:
             if self.discs.specs and not self.tags.specs:
                 raise FrameError("size", "colour discs need a 3-channel frame, got grey")
-            gray = frame
-        found += self.tags.detect(frame, gray)
+            found += self.tags.detect(frame, frame)
         return best_per_vehicle([d for d in found if d.quality >= self.min_quality])
 
     def bearings_level(
