@@ -19,7 +19,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -105,9 +105,10 @@ class DemoPorts:
 
 
 def write_demo_files(
-    out: Path, plan: FormationPlan, ports: DemoPorts, fleet: str, mode: str
+    out: Path, plan: FormationPlan, ports: DemoPorts, fleet: str, mode: str, loss: float = 0.0
 ) -> Path:
-    """Formation, start layout and fleet files for the simulator and the daemons."""
+    """Formation, start layout and fleet files for the simulator and the daemons; ``loss`` is
+    the fraction of peer messages every daemon drops on purpose (``zenoh.inject_loss``)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "formation.toml").write_text(
         _formation_toml(plan.p_ned, plan.yaw_rad, plan.edges, "demo")
@@ -131,6 +132,7 @@ def write_demo_files(
                 "",
                 "[zenoh]",
                 f"port_base = {ports.zenoh}",
+                f"inject_loss = {loss}",
                 "",
             ]
         )
@@ -311,17 +313,37 @@ def run_demo(
     seed: int = 0,
     mode: str = "formation-active",
     on_tick: Callable[[Evaluator, float, str], None] | None = None,
+    bearings: str = "sim",
+    camera_files: Sequence[Path] = (),
+    markers_file: Path | None = None,
+    speedup: float = 1.0,
+    render_rate_hz: float = 10.0,
+    loss: float = 0.0,
 ) -> dict[str, Any]:
-    """Run the whole mission (module docstring) and return its summary."""
+    """Run the whole mission (module docstring) and return its summary.
+
+    ``bearings = "camera"``: the simulator renders every vehicle's camera rig (``camera_files``,
+    camera_id = order) with the markers of ``markers_file`` at ``render_rate_hz`` of simulation
+    time, and the agents take their bearings from those images. ``speedup`` is the simulator's
+    (< 1 gives rendering the wall time it needs); ``duration_s`` is wall time."""
     from sim.server import free_port_base
 
     base = free_port_base(vehicles + 2, span=60, seed=None)
     ports = DemoPorts(zenoh=base, mavlink=base + 10 + vehicles, gcs=base + 9)
     plan = plan_formation(vehicles, seed)
     fleet = f"demo{base}"
-    fleet_path = write_demo_files(out, plan, ports, fleet, mode)
+    fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss)
     procs = Processes(out)
     evaluator: Evaluator | None = None
+    rig = [a for f in camera_files for a in ("--camera", str(f))]
+    marker_args = ["--markers", str(markers_file)] if markers_file is not None else []
+    agent_camera_args = [*rig, *marker_args] if bearings == "camera" else []
+    render_rig = [a for f in camera_files for a in ("--render-camera", str(f))]
+    camera_args = (
+        [*render_rig, *marker_args, "--render-rate", str(render_rate_hz)]
+        if bearings == "camera"
+        else []
+    )
     try:
         procs.start(
             "sim",
@@ -331,13 +353,15 @@ def run_demo(
                 "--fleet", fleet, "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
                 "--bind-base", str(ports.mavlink + vehicles + 5),
                 "--camera-fov", "360", "--camera-range", "80", "--seed", str(seed), "--quiet",
+                "--speedup", str(speedup), *camera_args,
             ],
         )  # fmt: skip
         for i in range(vehicles):
             procs.start(
                 f"agent{i}",
-                ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path)],
-            )
+                ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path),
+                 "--bearings", bearings, *agent_camera_args],
+            )  # fmt: skip
         evaluator = Evaluator(
             fleet,
             plan,

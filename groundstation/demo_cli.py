@@ -1,8 +1,14 @@
-"""``bearingflock demo``: the README's main command (see :mod:`groundstation.demo`)."""
+"""``bearingflock demo``: the README's main command (see :mod:`groundstation.demo`).
+
+``--bearings camera`` flies it on bearings from pixels: :func:`write_camera_rig` writes a ring of
+cameras and one coloured ball per vehicle, the simulator renders them and the agents run the
+camera pipeline (docs/vision.md, "Flying on camera bearings").
+"""
 
 from __future__ import annotations
 
 import json as jsonlib
+import math
 import sys
 import tempfile
 from pathlib import Path
@@ -58,6 +64,61 @@ def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
     return table
 
 
+BALL_COLOURS_HSV = ((0, "red"), (30, "yellow"), (60, "green"), (90, "cyan"), (120, "blue"),
+                    (150, "magenta"))  # fmt: skip
+"""Hues (OpenCV H 0-179) of the balls the vehicles carry: one identity per colour."""
+HUE_HALF_WIDTH = 10
+
+
+def write_camera_rig(
+    out: Path,
+    vehicles: int,
+    cameras: int = 4,
+    width: int = 320,
+    height: int = 240,
+    hfov_deg: float = 100.0,
+    ball_m: float = 0.6,
+) -> tuple[list[Path], Path]:
+    """Camera files of a ring of ``cameras`` pinhole cameras (camera ``k`` looks ``360 k /
+    cameras`` degrees right of the nose; ``hfov_deg`` a little over ``360 / cameras`` makes
+    neighbours overlap, so a ball cut by one frame is whole in the next) and a markers file with
+    one coloured ball per vehicle id ``0..vehicles-1``. Returns ``(camera files, markers file)``."""
+    if not 1 <= vehicles <= len(BALL_COLOURS_HSV):
+        raise ValueError(
+            f"camera bearings: at most {len(BALL_COLOURS_HSV)} vehicles (ball colours)"
+        )
+    if cameras < 1 or not 0.0 < hfov_deg < 170.0:
+        raise ValueError("a rig needs >= 1 camera and a field of view in (0, 170) degrees")
+    out.mkdir(parents=True, exist_ok=True)
+    f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2.0)
+    files = []
+    for k in range(cameras):
+        path = out / f"camera{k}.toml"
+        path.write_text(
+            f"# ring camera {k} of {cameras}: {hfov_deg:g} deg horizontal field of view\n"
+            f"width = {width}\nheight = {height}\nfx = {f:.4f}\nfy = {f:.4f}\n"
+            f"cx = {0.5 * width}\ncy = {0.5 * height}\ndist = [0.0, 0.0, 0.0, 0.0, 0.0]\n"
+            f"mount_rpy_deg = [0.0, 0.0, {360.0 * k / cameras:g}]\n"
+        )
+        files.append(path)
+    lines = ["# one coloured ball per vehicle, centred on its body origin (docs/vision.md)", ""]
+    for vid in range(vehicles):
+        hue, name = BALL_COLOURS_HSV[vid]
+        lo, hi = (hue - HUE_HALF_WIDTH) % 180, (hue + HUE_HALF_WIDTH) % 180
+        lines += [
+            "[[marker]]",
+            f"id = {vid}",
+            f'kind = "disc"  # a {name} ball',
+            f"size_m = {ball_m}",
+            f"color_hsv_min = [{lo}, 120, 60]",
+            f"color_hsv_max = [{hi}, 255, 255]",
+            "",
+        ]
+    markers = out / "markers.toml"
+    markers.write_text("\n".join(lines))
+    return files, markers
+
+
 def demo(
     vehicles: Annotated[int, typer.Option(help="Number of vehicles.")] = 6,
     flavour: Annotated[str, typer.Option(help="px4 or ardupilot.")] = "px4",
@@ -68,6 +129,26 @@ def demo(
     json: Annotated[
         bool, typer.Option("--json", help="Print the summary as one JSON object.")
     ] = False,
+    bearings: Annotated[
+        str, typer.Option(help="sim (virtual camera) or camera (rendered images + pipeline).")
+    ] = "sim",
+    speedup: Annotated[
+        float | None,
+        typer.Option(help="Simulation speed (sim s per wall s) [1 with sim, 0.25 with camera]."),
+    ] = None,
+    cameras: Annotated[
+        int, typer.Option(help="Camera bearings: 1 (forward) or a ring of 3 or more.")
+    ] = 1,
+    camera_fov: Annotated[
+        float | None,
+        typer.Option(help="Camera bearings: horizontal fov (deg) [110 forward; 360/N + 10 ring]."),
+    ] = None,
+    camera_size: Annotated[
+        str, typer.Option(help="Camera bearings: image size WIDTHxHEIGHT.")
+    ] = "320x240",
+    render_rate: Annotated[
+        float, typer.Option(help="Camera bearings: frames per simulation second.")
+    ] = 10.0,
 ) -> None:
     """Fly a whole simulated mission: simulator + one daemon per vehicle, live table, summary."""
     from groundstation.demo import run_demo
@@ -79,17 +160,39 @@ def demo(
     if flavour not in ("px4", "ardupilot"):
         typer.echo("error: --flavour must be px4 or ardupilot", err=True)
         raise typer.Exit(2)
+    if bearings not in ("sim", "camera"):
+        typer.echo("error: --bearings must be sim or camera", err=True)
+        raise typer.Exit(2)
+    speed = speedup if speedup is not None else (0.25 if bearings == "camera" else 1.0)
+    if not speed > 0.0:
+        typer.echo("error: --speedup must be > 0", err=True)
+        raise typer.Exit(2)
     out_dir = out or Path(tempfile.mkdtemp(prefix="bearingflock-demo-"))
+    camera_files: list[Path] = []
+    markers_file = None
+    if bearings == "camera":
+        try:
+            width, height = (int(x) for x in camera_size.lower().split("x"))
+            if cameras == 2:
+                raise ValueError("--cameras: 1 (forward) or a ring of 3 or more")
+            hfov = camera_fov or (110.0 if cameras == 1 else 360.0 / cameras + 10.0)
+            camera_files, markers_file = write_camera_rig(
+                out_dir / "rig", vehicles, cameras, width, height, hfov_deg=hfov
+            )
+        except ValueError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+    wall_s = duration / speed  # --duration is mission time in simulation seconds
     console = Console(stderr=json)
     live_view = console.is_terminal and not json
     last_print = [-10.0]
 
     def on_tick(ev, elapsed_s: float, phase: str) -> None:
         if live_view:
-            live.update(_table(ev, elapsed_s, phase, duration))
+            live.update(_table(ev, elapsed_s, phase, wall_s))
         elif elapsed_s - last_print[0] >= 5.0:
             last_print[0] = elapsed_s
-            console.print(_table(ev, elapsed_s, phase, duration))
+            console.print(_table(ev, elapsed_s, phase, wall_s))
 
     try:
         with (
@@ -97,13 +200,19 @@ def demo(
             if live_view
             else _Null() as live
         ):
-            summary = run_demo(vehicles, flavour, duration, out_dir, seed, mode, on_tick)
+            summary = run_demo(
+                vehicles, flavour, wall_s, out_dir, seed, mode, on_tick, bearings=bearings,
+                camera_files=camera_files, markers_file=markers_file, speedup=speed,
+                render_rate_hz=render_rate,
+            )  # fmt: skip
     except KeyboardInterrupt:
         console.print("[yellow]interrupted: every process was stopped[/yellow]")
         raise typer.Exit(130) from None
     except RuntimeError as exc:
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(1) from None
+    summary["bearings"] = bearings
+    summary["speedup"] = speed
     summary["out"] = str(out_dir)
     summary["plots"] = [str(p) for p in plot_demo(out_dir)]
     if json:

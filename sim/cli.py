@@ -63,6 +63,21 @@ def sim(
     camera_rate: Annotated[float, typer.Option(help="Camera rate (Hz).")] = 30.0,
     camera_noise: Annotated[float, typer.Option(help="Bearing noise std (rad).")] = 0.0,
     camera_dropout: Annotated[float, typer.Option(help="Probability of a missed detection.")] = 0.0,
+    render_camera: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Render images with this camera file (repeatable: a rig, camera_id = order); "
+            "needs --markers and --zenoh."
+        ),
+    ] = None,
+    markers: Annotated[
+        Path | None, typer.Option(help="Markers file: what each vehicle carries (rendering).")
+    ] = None,
+    render_rate: Annotated[float, typer.Option(help="Rendered frames per sim second.")] = 10.0,
+    render_blur: Annotated[float, typer.Option(help="Gaussian blur sigma (px).")] = 0.5,
+    render_noise: Annotated[float, typer.Option(help="Pixel noise std (grey levels).")] = 1.0,
+    render_encoding: Annotated[str, typer.Option(help="jpeg or png.")] = "jpeg",
+    render_quality: Annotated[int, typer.Option(help="JPEG quality (1-100).")] = 90,
     quiet: Annotated[bool, typer.Option(help="No live status line.")] = False,
 ) -> None:
     """Run a multi-vehicle kinematic MAVLink simulator (PX4 or ArduPilot flavour)."""
@@ -75,6 +90,10 @@ def sim(
 
     if lockstep and zenoh is None and not zenoh_connect:
         raise typer.BadParameter("--lockstep needs --zenoh (steps arrive as SimStep messages)")
+    if render_camera and (markers is None or (zenoh is None and not zenoh_connect)):
+        raise typer.BadParameter("--render-camera needs --markers and --zenoh (images go to Zenoh)")
+    if render_encoding not in ("jpeg", "png"):
+        raise typer.BadParameter("--render-encoding must be jpeg or png")
     try:
         ids: list[int] | None = None
         if layout == "grid":
@@ -104,18 +123,30 @@ def sim(
         camera = CameraConfig(
             camera_fov, camera_range, camera_noise, camera_dropout, camera_rate, seed
         )
+        rig = _render_rig(render_camera, markers, render_rate, render_blur, render_noise,
+                          render_encoding, render_quality, seed)  # fmt: skip
         server = SimServer(config)
     except (ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
 
     session = None
+    images: Any = None
     subscribers: list[Any] = []  # keep Zenoh subscribers alive
     if zenoh is not None or zenoh_connect:
         session = _open_zenoh(zenoh, zenoh_connect or [])
         put = _zenoh_put(session)
         server.hooks.append(CameraPublisher(camera, fleet, put, ids=ids))
         server.hooks.append(ClockPublisher(fleet, put, server.clock, config.dt_s))
+        if rig is not None:
+            from sim.image_publisher import ImagePublisher
+
+            cameras, specs, render = rig
+            images = ImagePublisher(
+                cameras, specs, render, fleet, _zenoh_put(session), ids=ids,
+                wind_ned=config.noise.wind_ned_mps,
+            )  # fmt: skip
+            server.hooks.append(images)
         if lockstep:
             subscribers.append(_subscribe_steps(session, fleet, server))
 
@@ -123,6 +154,11 @@ def sim(
         typer.echo(line)
     if session is not None:
         typer.echo(f"zenoh: fleet {fleet!r}, listening on {zenoh}, connecting to {zenoh_connect}")
+    if images is not None:
+        typer.echo(
+            f"rendering {len(images.renderers)} camera(s) per vehicle at {render_rate} Hz "
+            f"(sim time) on {fleet!r}/<id>/camera/image"
+        )
     typer.echo(
         f"{server.world.n} {flavour} vehicles, speedup {speedup}, "
         f"{'lockstep' if lockstep else 'real time'}{', strict' if strict else ''}"
@@ -137,17 +173,43 @@ def sim(
         while not stop.wait(0.5):
             if not quiet:
                 end = "\r" if sys.stdout.isatty() else "\n"
-                sys.stdout.write(server.status() + end)
+                extra = f"  {images.status()}" if images is not None else ""
+                sys.stdout.write(server.status() + extra + end)
                 sys.stdout.flush()
     except KeyboardInterrupt:
         pass
     finally:
         signal.signal(signal.SIGTERM, previous)
         server.stop()
+        if images is not None:
+            images.close()
+            typer.echo(f"\n{images.status()}")
         if session is not None:
             session.close()
         counters = " ".join(f"{k}={v}" for k, v in server.counters().items() if v)
         typer.echo(f"\nstopped at t={server.world.t_s:.2f}s; {counters}")
+
+
+def _render_rig(
+    files: list[Path] | None,
+    markers: Path | None,
+    rate_hz: float,
+    blur_px: float,
+    noise: float,
+    encoding: str,
+    quality: int,
+    seed: int,
+) -> tuple[list[Any], list[Any], Any] | None:
+    """``(cameras, marker specs, RenderConfig)`` of ``--render-camera``, or ``None``; raises
+    ``ValueError`` (a :class:`VisionConfigError`) for a bad file or option."""
+    if not files:
+        return None
+    from onboard.vision.config import load_camera, load_markers
+    from sim.image_publisher import RenderConfig
+
+    assert markers is not None
+    render = RenderConfig(rate_hz, blur_px, noise, encoding, quality, seed)  # type: ignore[arg-type]
+    return [load_camera(f) for f in files], load_markers(markers), render
 
 
 def _open_zenoh(listen: str | None, connect: list[str]) -> Any:

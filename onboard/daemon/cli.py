@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -23,6 +24,24 @@ def agent(
         bool, typer.Option("--json-status", help="Print every status as a JSON line on stdout.")
     ] = False,
     log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
+    bearings: Annotated[
+        str | None,
+        typer.Option(
+            help="sim (the simulator's virtual camera) or camera (images through the camera "
+            "pipeline); default from the fleet file."
+        ),
+    ] = None,
+    camera: Annotated[
+        list[Path] | None,
+        typer.Option(help="Camera file, repeatable: camera_id = order (overrides camera.files)."),
+    ] = None,
+    markers: Annotated[
+        Path | None, typer.Option(help="Markers file (overrides camera.markers).")
+    ] = None,
+    camera_device: Annotated[
+        str | None,
+        typer.Option(help="Local OpenCV capture (index, file or URL) instead of Zenoh images."),
+    ] = None,
 ) -> None:
     """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
     import msgspec
@@ -32,6 +51,7 @@ def agent(
     from onboard.autopilot import open_link
     from onboard.autopilot.base import LinkConfig
     from onboard.daemon.bearings import SimCameraSource
+    from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
     from onboard.daemon.clock import SimClockFollower, WallClock
     from onboard.daemon.config import ConfigError, load_fleet
     from onboard.daemon.loop import AgentDaemon, agent_config
@@ -51,6 +71,11 @@ def agent(
         typer.echo(f"error: --id {agent_id}: the fleet has agents 0..{fleet.n - 1}", err=True)
         raise typer.Exit(2)
     c = fleet.config
+    bearings = bearings or c.bearings
+    if bearings not in ("sim", "camera"):
+        typer.echo(f"error: --bearings must be sim or camera, got {bearings!r}", err=True)
+        raise typer.Exit(2)
+    pipelines = _camera_pipelines(fleet, camera, markers) if bearings == "camera" else []
     others = [fleet.zenoh_port(j) for j in range(fleet.n) if j != agent_id]
     settings = ZenohSettings(
         mode=c.zenoh.mode,
@@ -61,7 +86,9 @@ def agent(
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
     neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}
-    peers = PeerLink(c.fleet, agent_id, range(fleet.n), settings, drops, neighbours)
+    peers = PeerLink(
+        c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss
+    )
     if c.clock == "sim":
         follower = SimClockFollower()
 
@@ -94,13 +121,83 @@ def agent(
             sys.stdout.flush()
 
     url = mavlink or fleet.mavlink_url(agent_id)
-    daemon = AgentDaemon(
-        fleet, agent_id, link, peers, SimCameraSource(peers, drops), clock, drops, url, on_status
-    )
+    source: SimCameraSource | CameraImageSource
+    capture: DeviceCapture | None = None
+    if bearings == "camera":
+        source = CameraImageSource(
+            agent_id, pipelines, range(fleet.n), drops, _attitude(link, clock, c.clock)
+        )
+        device = camera_device if camera_device is not None else c.camera.device
+        if device:
+            try:
+                capture = DeviceCapture(device, source, clock.now)
+            except OSError as exc:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(2) from None
+        else:
+            source.subscribe(peers)
+    else:
+        source = SimCameraSource(peers, drops)
+    daemon = AgentDaemon(fleet, agent_id, link, peers, source, clock, drops, url, on_status)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: daemon.stop_event.set())
     try:
         daemon.run()
     finally:
+        if capture is not None:
+            capture.close()
+        if isinstance(source, CameraImageSource):
+            source.close()
+            st = source.stats
+            logging.getLogger(__name__).info(
+                "camera: %d frames processed, %d skipped, %d late, %d incomplete sets, "
+                "%d cut at the border, %d bearings",
+                st.frames, st.skipped, st.late, st.incomplete, st.cut, st.detections,
+            )  # fmt: skip
         link.close()
         peers.close()
+
+
+def _camera_pipelines(fleet: Any, camera: list[Path] | None, markers: Path | None) -> list[Any]:
+    """One vision pipeline per camera of the rig, from the options or the fleet file."""
+    from onboard.vision.config import VisionConfigError, load_camera, load_markers
+    from onboard.vision.pipeline import VisionPipeline
+
+    c = fleet.config.camera
+    files = list(camera) if camera else [fleet.resolve(f) for f in c.files]
+    markers_file = markers or (fleet.resolve(c.markers) if c.markers else None)
+    if not files or markers_file is None:
+        typer.echo(
+            "error: camera bearings need camera files and a markers file "
+            "(--camera/--markers or [camera] files/markers in the fleet file)",
+            err=True,
+        )
+        raise typer.Exit(2)
+    try:
+        specs = load_markers(markers_file)
+        return [VisionPipeline(load_camera(f), specs) for f in files]
+    except VisionConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
+def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
+    """The autopilot's roll and pitch stamped in the frames' clock: autopilot time
+    (``time_boot_ms``, which is simulation time) with the simulator's clock; otherwise the
+    daemon's clock minus the attitude's age."""
+    from onboard.daemon.camera_source import AttitudeSample
+
+    def sample() -> AttitudeSample | None:
+        tel = link.telemetry()
+        if not tel.connected:
+            return None
+        if clock_kind == "sim":
+            t = tel.t_boot_s
+        else:
+            now = clock.now()
+            t = None if now is None else now - tel.attitude_age_s
+        if t is None or not math.isfinite(tel.attitude_age_s):
+            return None
+        return AttitudeSample(t, tel.roll_rad, tel.pitch_rad)
+
+    return sample

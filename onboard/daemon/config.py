@@ -12,6 +12,8 @@
     takeoff_alt_m = 5.0
     prior_scale = 0.6                 # initial localization guess = planned positions x this
     on_exit = "hold"                  # on SIGINT/SIGTERM: "hold" or "land"
+    bearings = "sim"                  # "sim": the simulator's virtual camera; "camera": images
+                                      # through the camera pipeline (the [camera] section)
 
     [rates]                           # Hz
     core = 100.0                      # agent core ticks (integrated in sub-steps of <= 5 ms)
@@ -33,7 +35,16 @@
     mode = "peer"                     # or "client" with a router in connect
     port_base = 7447                  # agent i listens on port_base + 1 + i; the simulator on port_base
     connect = []                      # extra endpoints (a router, remote peers)
+    inject_loss = 0.0                 # fault injection (tests, demos): drop this fraction of
+                                      # the peer messages received, at random
     config_file = ""                  # a full Zenoh JSON5 config (TLS...), overrides the above
+
+    [camera]                          # bearings = "camera" (docs/vision.md)
+    files = ["camera.toml"]           # camera rig: one camera file per camera_id, relative to
+                                      # this file
+    markers = "markers.toml"          # the fleet's markers (one per vehicle id)
+    device = ""                       # "": images over Zenoh (bf/<fleet>/<id>/camera/image);
+                                      # else a local OpenCV capture (index, file or URL) as camera 0
 
 Agent ids are the vehicle indices ``0..N-1`` (MAVLink system id = id + 1, PX4 SITL port
 14540 + id), as in ``shared/design.md``.
@@ -79,6 +90,13 @@ class ZenohSection(msgspec.Struct, forbid_unknown_fields=True):
     port_base: int = 7447
     connect: list[str] = msgspec.field(default_factory=list)
     config_file: str = ""
+    inject_loss: float = 0.0
+
+
+class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
+    files: list[str] = msgspec.field(default_factory=list)
+    markers: str = ""
+    device: str = ""
 
 
 class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
@@ -90,10 +108,12 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
     takeoff_alt_m: float = 5.0
     prior_scale: float = 0.6
     on_exit: Literal["hold", "land"] = "hold"
+    bearings: Literal["sim", "camera"] = "sim"
     rates: Rates = msgspec.field(default_factory=Rates)
     limits: Limits = msgspec.field(default_factory=Limits)
     mavlink: MavlinkSettings = msgspec.field(default_factory=MavlinkSettings)
     zenoh: ZenohSection = msgspec.field(default_factory=ZenohSection)
+    camera: CameraSection = msgspec.field(default_factory=CameraSection)
 
 
 class Fleet(msgspec.Struct, frozen=True):
@@ -116,6 +136,10 @@ class Fleet(msgspec.Struct, frozen=True):
 
     def sim_zenoh_port(self) -> int:
         return self.config.zenoh.port_base
+
+    def resolve(self, name: str) -> Path:
+        """A file named in the fleet file, relative to the fleet file's directory."""
+        return Path(self.path).parent / name
 
 
 def load_fleet(path: str | Path) -> Fleet:
@@ -143,12 +167,21 @@ def load_fleet(path: str | Path) -> Fleet:
     for name, value in msgspec.structs.asdict(config.limits).items():
         if not value > 0.0:
             raise ConfigError(f"{path}: limits.{name}: must be > 0, got {value}")
+    if not 0.0 <= config.zenoh.inject_loss < 1.0:
+        raise ConfigError(
+            f"{path}: zenoh.inject_loss: must be in [0, 1), got {config.zenoh.inject_loss}"
+        )
     if not 0.0 < config.prior_scale <= 10.0:
         raise ConfigError(f"{path}: prior_scale: must be in (0, 10], got {config.prior_scale}")
     if not 0.5 <= config.takeoff_alt_m <= 100.0:
         raise ConfigError(
             f"{path}: takeoff_alt_m: must be in [0.5, 100], got {config.takeoff_alt_m}"
         )
+    cam = config.camera
+    if config.bearings == "camera" and not (cam.files and cam.markers):
+        raise ConfigError(f"{path}: bearings = 'camera' needs camera.files and camera.markers")
+    if cam.device and len(cam.files) != 1:
+        raise ConfigError(f"{path}: camera.device feeds one camera: give exactly one camera file")
     try:
         formation = load_formation(path.parent / config.formation)
     except FormationError as exc:

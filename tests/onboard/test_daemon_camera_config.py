@@ -1,0 +1,84 @@
+"""Fleet-file keys for camera bearings (additive: files without them keep their meaning), and
+the agent command's checks of the camera options."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from groundstation.demo_cli import write_camera_rig
+from onboard.daemon.config import ConfigError, load_fleet
+from onboard.vision.config import load_camera, load_markers
+
+FORMATION = """
+[[agent]]
+id = 0
+position_ned = [0.0, 0.0, -5.0]
+[[agent]]
+id = 1
+position_ned = [4.0, 0.0, -5.0]
+"""
+
+
+def write(tmp_path: Path, fleet: str) -> Path:
+    (tmp_path / "formation.toml").write_text(FORMATION)
+    path = tmp_path / "fleet.toml"
+    path.write_text('formation = "formation.toml"\n' + fleet)
+    return path
+
+
+def test_camera_keys_default_to_the_virtual_camera(tmp_path: Path) -> None:
+    fleet = load_fleet(write(tmp_path, ""))
+    assert fleet.config.bearings == "sim" and fleet.config.camera.files == []
+
+
+def test_camera_section_is_resolved_next_to_the_fleet_file(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        'bearings = "camera"\n[camera]\nfiles = ["rig/camera0.toml"]\nmarkers = "rig/m.toml"\n',
+    )
+    fleet = load_fleet(path)
+    assert fleet.resolve(fleet.config.camera.files[0]) == tmp_path / "rig" / "camera0.toml"
+
+
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ('bearings = "camera"\n', "needs camera.files and camera.markers"),
+        ('bearings = "pixels"\n', "bearings"),
+        ('[camera]\nfiles = ["a.toml", "b.toml"]\ndevice = "0"\n', "exactly one camera file"),
+        ("[camera]\nlens = 3\n", "lens"),
+    ],
+)
+def test_bad_camera_keys_are_named(tmp_path: Path, text: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_fleet(write(tmp_path, text))
+
+
+def test_rig_files_load_with_the_vision_config(tmp_path: Path) -> None:
+    files, markers = write_camera_rig(tmp_path, 6, cameras=4, width=320, height=240, hfov_deg=100)
+    cams = [load_camera(f) for f in files]
+    # the convention of CameraModel.from_fov: f = (W / 2) / tan(hfov / 2)
+    assert [c.fx for c in cams] == pytest.approx([160.0 / 1.19175359] * 4)
+    assert [c.mount_rpy_deg[2] for c in cams] == [0.0, 90.0, 180.0, 270.0]
+    specs = load_markers(markers)
+    assert [s.id for s in specs] == list(range(6)) and {s.kind for s in specs} == {"disc"}
+    assert specs[0].color_hsv_min[0] > specs[0].color_hsv_max[0]  # red wraps through H = 0
+    with pytest.raises(ValueError, match="at most 6"):
+        write_camera_rig(tmp_path, 7)
+
+
+def test_agent_refuses_camera_bearings_without_files(tmp_path: Path) -> None:
+    from groundstation.cli import app
+
+    path = write(tmp_path, "")
+    result = CliRunner().invoke(
+        app, ["agent", "--id", "0", "--config", str(path), "--bearings", "camera"]
+    )
+    assert result.exit_code == 2 and "camera files and a markers file" in result.output
+    result = CliRunner().invoke(
+        app, ["agent", "--id", "0", "--config", str(path), "--bearings", "sonar"]
+    )
+    assert result.exit_code == 2 and "sim or camera" in result.output
