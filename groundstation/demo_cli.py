@@ -149,6 +149,10 @@ def demo(
     render_rate: Annotated[
         float, typer.Option(help="Camera bearings: frames per simulation second.")
     ] = 10.0,
+    loss: Annotated[
+        float,
+        typer.Option(help="Fault injection: fraction of peer messages every daemon drops."),
+    ] = 0.0,
 ) -> None:
     """Fly a whole simulated mission: simulator + one daemon per vehicle, live table, summary."""
     from groundstation.demo import run_demo
@@ -156,6 +160,9 @@ def demo(
 
     if vehicles < 3:
         typer.echo("error: --vehicles must be at least 3", err=True)
+        raise typer.Exit(2)
+    if not 0.0 <= loss < 1.0:
+        typer.echo("error: --loss must be in [0, 1)", err=True)
         raise typer.Exit(2)
     if flavour not in ("px4", "ardupilot"):
         typer.echo("error: --flavour must be px4 or ardupilot", err=True)
@@ -203,7 +210,7 @@ def demo(
             summary = run_demo(
                 vehicles, flavour, wall_s, out_dir, seed, mode, on_tick, bearings=bearings,
                 camera_files=camera_files, markers_file=markers_file, speedup=speed,
-                render_rate_hz=render_rate,
+                render_rate_hz=render_rate, loss=loss,
             )  # fmt: skip
     except KeyboardInterrupt:
         console.print("[yellow]interrupted: every process was stopped[/yellow]")

@@ -390,8 +390,8 @@ class AgentCore:
             self._drop("nonfinite_own")
             return Setpoint(v_body=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0), []
 
-        self._take_bearings(own, yaw_own, outbox)
         self._own_hist.add(t_s, (*u_i, w_i, yaw_own))
+        self._take_bearings(own, yaw_own, outbox)
 
         # relative velocity on reciprocal edges: u_ij = iR_j u_j - u_i (eq. 7)
         rel: dict[int, tuple[float, Vec3]] = {}
@@ -495,18 +495,25 @@ class AgentCore:
             if target in self._sfm_frames:
                 self._sfm_frames[target].append((s, beta))
             if target in self.yaw_edges:
-                self.yaw_edges[target].add_own(s, yaw_own, beta)
+                self.yaw_edges[target].add_own(s, self._yaw_at(s, yaw_own), beta)
         outbox.append(
             BearingShare(
                 sender=self.id,
                 seq=self._seq,
                 stamp_s=stamp,
-                yaw_rad=yaw_own,
+                yaw_rad=self._yaw_at(stamp, yaw_own),
                 targets=[t for t, _, _ in fresh],
                 beta_body=[b for _, _, b in fresh],
             )
         )
         return True
+
+    def _yaw_at(self, stamp_s: float, yaw_now: float) -> float:
+        """Own odometry yaw when a frame was captured: a frame reaches the core 10-150 ms late
+        (Zenoh, image processing) and pairing it with the yaw of its arrival biases the
+        relative yaw by ``yaw rate x latency``."""
+        sample = self._own_hist.at(stamp_s)
+        return yaw_now if sample is None else sample[4]
 
     def _advance_sfm(self, j: int, edge: SfmEdge, t_s: float) -> bool:
         """Advance the observer of edge ``(self, j)`` to ``tau = min(t, newest stamp of j's

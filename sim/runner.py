@@ -55,6 +55,13 @@ class RunnerConfig:
     yaw_offset_max_rad: float = math.pi
     """Odometry yaw offsets are drawn uniformly in ``[-max, max]``."""
     record_every: int = 5
+    camera_latency_s: float = 0.0
+    """Delay between a frame's capture (its stamp) and its delivery to the core."""
+    tau_v_s: float = 0.0
+    tau_yaw_s: float = 0.0
+    """Autopilot response: the NED velocity and the yaw rate follow the setpoint through
+    first-order lags with these time constants (the MAVLink simulator's ``tau_v_s = 0.3``,
+    ``tau_yaw_s = 0.2``); 0 is the paper's kinematic model (the setpoint is the velocity)."""
     seed: int = 0
     fov_deg: float | None = None
     """Virtual field of view: when set, a sensing edge is measured only while its target is
@@ -232,6 +239,11 @@ def run(
     pending: dict[int, list[list[Payload]]] = {}
     noise_v = runner.velocity_noise_m_s
     noise_w = runner.yaw_rate_noise_rad_s
+    v_ned: list[tuple[float, ...]] = [(0.0, 0.0, 0.0)] * n
+    cam_lag = round(runner.camera_latency_s / dt)
+    in_flight: dict[int, list[tuple[BearingMeasurement, ...]]] = {}
+    lag_v = min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0
+    lag_w = min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0
     r_idx = 0
     report_every = max(1, n_steps // 100)
 
@@ -245,7 +257,7 @@ def run(
             if runner.fov_deg is not None:
                 fov_edges = sensing_graph(p, yaw, runner.fov_deg, runner.sensing_range_m)
                 seen = {edge_row[(int(a), int(b))] for a, b in fov_edges if (a, b) in edge_row}
-            frames = [
+            captured = [
                 tuple(
                     BearingMeasurement(int(edges[e, 1]), tuple(rows[e]), t)
                     for e in edge_rows[i]
@@ -253,6 +265,9 @@ def run(
                 )
                 for i in range(n)
             ]
+            in_flight[k + cam_lag] = captured
+        if k in in_flight:
+            frames = in_flight.pop(k)
             if runner.range_pairs or runner.target_path is not None:
                 extras = _extra_measurements(p, yaw, t, runner)
         inboxes = pending.pop(k, None) or [[] for _ in range(n)]
@@ -292,14 +307,18 @@ def run(
         for i, sp in enumerate(setpoints):
             u, w = sp.v_body, sp.yaw_rate_rad_s
             c, s = math.cos(yaw[i]), math.sin(yaw[i])
+            v = (c * u[0] - s * u[1], s * u[0] + c * u[1], u[2])  # commanded, NED
+            if lag_v > 0.0:
+                vn = v_ned[i]
+                v = tuple(vn[m] + lag_v * (v[m] - vn[m]) for m in range(3))
+            if lag_w > 0.0:
+                w = w_body[i] + lag_w * (w - w_body[i])
+            v_ned[i] = v
             pi = p[i]
-            p[i] = [
-                pi[0] + dt * (c * u[0] - s * u[1]),
-                pi[1] + dt * (s * u[0] + c * u[1]),
-                pi[2] + dt * u[2],
-            ]
+            p[i] = [pi[0] + dt * v[0], pi[1] + dt * v[1], pi[2] + dt * v[2]]
             yaw[i] = yaw[i] + dt * w
-            v_body[i] = u
+            c, s = math.cos(yaw[i]), math.sin(yaw[i])
+            v_body[i] = (c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2])
             w_body[i] = w
         if progress is not None and (k % report_every == 0 or k == n_steps):
             progress(k / n_steps)

@@ -307,8 +307,12 @@ class AutopilotLink(ABC):
     def start_velocity_control(self, timeout_s: float | None = None) -> ActionResult: ...
 
     @abstractmethod
-    def set_setpoint(self, v_body: Vec3, yaw_rate_radps: float) -> tuple[Vec3, float]:
-        """Store the command to stream; returns it saturated and NaN-free."""
+    def set_setpoint(
+        self, v_body: Vec3, yaw_rate_radps: float, source_t: float | None = None
+    ) -> tuple[Vec3, float]:
+        """Store the command to stream; returns it saturated and NaN-free. ``source_t`` (link
+        clock) is when the newest measurement it is based on was taken: each send then records
+        its age in :attr:`setpoint_ages_s` (the daemon's bearing-to-wire latency)."""
 
     @abstractmethod
     def stop_streaming(self, reason: str = "requested") -> None: ...

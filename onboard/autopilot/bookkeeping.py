@@ -46,6 +46,8 @@ class LinkBookkeeping(AutopilotLink):
         self._stream = StreamState.IDLE
         self._setpoint = ZERO_SETPOINT
         self._t_setpoint = -math.inf
+        self._source_t: float | None = None
+        self.setpoint_ages_s: deque[float] = deque(maxlen=20_000)
         self._stop = threading.Event()
 
     def telemetry(self) -> Telemetry:
@@ -114,7 +116,9 @@ class LinkBookkeeping(AutopilotLink):
             detail=a.detail + suffix,
         )
 
-    def set_setpoint(self, v_body: Vec3, yaw_rate_radps: float) -> tuple[Vec3, float]:
+    def set_setpoint(
+        self, v_body: Vec3, yaw_rate_radps: float, source_t: float | None = None
+    ) -> tuple[Vec3, float]:
         cfg = self.config
         sat = saturate_setpoint(
             v_body,
@@ -125,6 +129,7 @@ class LinkBookkeeping(AutopilotLink):
         )
         with self._cond:
             self._setpoint, self._t_setpoint = sat, self._clock()
+            self._source_t = source_t
             self._counts["nan_setpoints"] += int(sat.non_finite)
             self._counts["saturated_setpoints"] += int(sat.clipped)
             active = self._stream is not StreamState.IDLE

@@ -290,6 +290,7 @@ class PymavlinkLink(LinkBookkeeping):
                         self._event("setpoint_stale", "no fresh setpoint: sending zero", t_s=now)
                 self._setpoint_stale = stale
             ts, tc = self._target
+            source_t = self._source_t if sp is self._setpoint else None
         v, r = sp.v_body, sp.yaw_rate_radps
         sent = self._send(
             lambda mav: mav.set_position_target_local_ned_send(
@@ -299,6 +300,8 @@ class PymavlinkLink(LinkBookkeeping):
         )  # fmt: skip
         if sent:
             self._count("setpoints_sent")
+            if source_t is not None:
+                self.setpoint_ages_s.append(self._clock() - source_t)
 
     # --- public state ---------------------------------------------------------------------------
     # --- setpoints ------------------------------------------------------------------------------

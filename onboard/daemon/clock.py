@@ -45,6 +45,12 @@ class SimClockFollower:
             self._t_sim, self._t_mono = t_sim_s, time.monotonic()
             self._speedup, self._lockstep = speedup, lockstep
 
+    @property
+    def speedup(self) -> float:
+        """Simulation seconds per wall second (last published)."""
+        with self._lock:
+            return self._speedup
+
     def now(self) -> float | None:
         with self._lock:
             if self._t_sim is None:

@@ -16,6 +16,7 @@ the link stops streaming; SIGINT/SIGTERM hold, then exit (or land, if configured
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import queue
@@ -35,6 +36,7 @@ from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
+from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.geometry import bearings_body
 from onboard.graph import formation_edges
@@ -135,6 +137,8 @@ class AgentDaemon:
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
         self._status_seq = 0
+        self.metrics = DaemonMetrics()
+        self._newest_frame_s = -math.inf
 
     # ------------------------------------------------------------------ flight thread
     def _flight(self) -> None:
@@ -253,6 +257,8 @@ class AgentDaemon:
 
     def _measurements(self, now_s: float, tel: Telemetry) -> OwnMeasurements:
         frame = self.bearings.poll()
+        if frame:
+            self._newest_frame_s = max(self._newest_frame_s, *(b.stamp_s for b in frame))
         return OwnMeasurements(
             t_s=now_s,
             yaw_rad=tel.yaw_rad,
@@ -302,13 +308,16 @@ class AgentDaemon:
                 time.sleep(delay)
             else:
                 next_tick = time.monotonic()  # overrun: do not try to catch up
+            self.metrics.tick_late_s.append(max(0.0, time.monotonic() - next_tick))
             now_s = self._now()
             tel = self.link.telemetry()
             if now_s is None or not tel.connected:
                 continue
             self._handle_commands()
             self._update_peers(now_s)
+            t_step = time.perf_counter()
             setpoint, out = self._step_core(now_s, tel)
+            self.metrics.core_step_s.append(time.perf_counter() - t_step)
             outbox.extend(out)
             step += 1
             if step % publish_every == 0:
@@ -371,10 +380,19 @@ class AgentDaemon:
                 tel.stale or "rigidity_lost" in alarms or "bearings_stale" in alarms
             )
             if safe:
-                self.link.set_setpoint(setpoint.v_body, setpoint.yaw_rate_rad_s)
+                self.link.set_setpoint(
+                    setpoint.v_body, setpoint.yaw_rate_rad_s, self._frame_link_time(now_s)
+                )
             else:
                 self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
         return alarms
+
+    def _frame_link_time(self, now_s: float) -> float | None:
+        """When (link clock) the newest bearing frame used so far was captured."""
+        if not math.isfinite(self._newest_frame_s):
+            return None
+        speedup = getattr(self.clock, "speedup", 1.0)
+        return self.link.config.clock() - (now_s - self._newest_frame_s) / max(speedup, 1e-6)
 
     def _shutdown(self) -> None:
         c = self.fleet.config
@@ -385,3 +403,6 @@ class AgentDaemon:
                 self.link.land()
             self.link.stop_streaming("daemon exit")
         self.state.set("stopped")
+        summary = self.metrics.summary()
+        summary["bearing_to_wire"] = percentiles_ms(list(getattr(self.link, "setpoint_ages_s", ())))
+        log.info("metrics %s", json.dumps(summary))

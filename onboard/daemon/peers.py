@@ -13,6 +13,7 @@ failure is counted by reason and logged once per reason (shared/design.md).
 from __future__ import annotations
 
 import logging
+import random
 import threading
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
@@ -54,7 +55,9 @@ class DropCounter:
 class PeerLink:
     """Zenoh I/O of one agent (module docstring). ``known`` are the fleet's agent ids;
     ``listen_to`` the agents whose peer payloads it subscribes to (its graph neighbours; default
-    every other agent), so nobody decodes traffic it would drop anyway."""
+    every other agent), so nobody decodes traffic it would drop anyway. ``inject_loss`` drops
+    that fraction of the received peer samples at random (fault injection, counted as
+    ``injected_loss``), seeded by the agent id."""
 
     def __init__(
         self,
@@ -64,8 +67,13 @@ class PeerLink:
         settings: ZenohSettings,
         drops: DropCounter,
         listen_to: Iterable[int] | None = None,
+        inject_loss: float = 0.0,
     ) -> None:
+        if not 0.0 <= inject_loss < 1.0:
+            raise ValueError(f"inject_loss must be in [0, 1), got {inject_loss}")
         self.fleet = fleet
+        self.inject_loss = inject_loss
+        self._loss_rng = random.Random(agent_id)
         self.listen_to = frozenset(listen_to) if listen_to is not None else None
         self.id = agent_id
         self.known = frozenset(known)
@@ -98,6 +106,12 @@ class PeerLink:
         self._handles.append(self.session.declare_subscriber(key_expr, handler))
 
     def _on_peer(self, sample: Any) -> None:
+        if self.inject_loss > 0.0:
+            with self._lock:
+                lost = self._loss_rng.random() < self.inject_loss
+            if lost:
+                self.drops.drop("injected_loss", "fault injection (zenoh.inject_loss)")
+                return
         try:
             _, key_id, _ = parse_key(str(sample.key_expr))
         except ValueError as exc:

@@ -1,0 +1,43 @@
+"""The README's main job end to end: ``bearingflock demo``'s mission with 6 vehicles, as real
+processes (simulator, six daemons, real UDP MAVLink, real Zenoh on loopback), scored against
+the simulator's truth and against the headless runner flying the same configurations."""
+
+from __future__ import annotations
+
+import pytest
+
+from groundstation.demo import run_demo
+from groundstation.demo_headless import headless_demo
+
+pytestmark = pytest.mark.e2e
+
+VEHICLES = 6
+DURATION_S = 45.0
+"""Wall seconds of mission (take-off included, about 10 s) before the demo lands everyone."""
+SCALE_TOLERANCE = 0.02
+BEARING_TOLERANCE_DEG = 3.0
+
+
+@pytest.mark.parametrize("loss", [0.0, 0.1], ids=["no-loss", "10pct-zenoh-loss"])
+def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path, loss):
+    summary = run_demo(VEHICLES, "px4", DURATION_S, tmp_path, seed=0, loss=loss)
+    report = {
+        k: summary[k] for k in ("time_to_scale_s", "final_scale_error", "final_bearing_error_deg")
+    }
+    assert summary["final_scale_error"] is not None, report
+    assert summary["final_scale_error"] < SCALE_TOLERANCE, report
+    assert summary["final_bearing_error_deg"] < BEARING_TOLERANCE_DEG, report
+    assert summary["time_to_scale_s"] is not None, report
+    assert summary["landed"], "every vehicle lands at the end"
+    if loss > 0.0:
+        assert summary["dropped_messages"] > 0, "the injected loss is counted"
+        return
+    # within noise of the headless runner flying the same configurations from the same start
+    reference, _ = headless_demo(VEHICLES, seed=0, duration_s=30.0)
+    assert reference["final_scale_error"] < SCALE_TOLERANCE
+    assert reference["final_bearing_error_deg"] < BEARING_TOLERANCE_DEG
+    assert abs(summary["final_scale_error"] - reference["final_scale_error"]) < SCALE_TOLERANCE
+    assert (
+        abs(summary["final_bearing_error_deg"] - reference["final_bearing_error_deg"])
+        < BEARING_TOLERANCE_DEG
+    )
