@@ -12,6 +12,8 @@ Per 2 ms step an agent publishes :class:`MotionShare`, :class:`LocalizationState
 
 from __future__ import annotations
 
+import msgspec
+
 from messages.codec import Payload
 
 Vec3 = tuple[float, float, float]
@@ -41,12 +43,14 @@ class SfmEstimate(Payload, tag="peer.sfm"):
     """Results of the inverse-depth observers (eq. 8) the sender runs, one entry per reciprocal
     edge ``(sender, peers[m])`` (the lower id runs the edge and shares it with the other end).
     ``e_index`` is ``E_ij`` of eq. 10 (window average of ``|xi|^2``), ``excitation`` is
-    ``lambda_ij = u_ij^T P_ij u_ij``."""
+    ``lambda_ij = u_ij^T P_ij u_ij``; ``e_folds`` is ``alpha int lambda_ij dt`` (how far the
+    observer has converged, empty from senders that predate it)."""
 
     peers: list[int]
     chi_hat_inv_m: list[float]
     excitation: list[float]
     e_index: list[float]
+    e_folds: list[float] = msgspec.field(default_factory=list)
 
 
 class ExcitationTable(Payload, tag="peer.excitation"):

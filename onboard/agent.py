@@ -119,6 +119,9 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     k_lambda0: float = 2.0
     e_low: float = 1e-4
     e_high: float = 1e-3
+    converged_e_folds: float = 5.0
+    """``scale_converged`` (status) needs ``alpha int lambda dt`` at least this on every SfM edge
+    the agent runs (``exp(-5)``: under 1% of the initial error left) and ``E < e_low``."""
     # formation (paper 002 eq. 20) and yaw alignment
     k_formation: float = 0.5
     k_yaw: float = 1.0
@@ -250,6 +253,7 @@ class AgentCore:
         self._loc: dict[int, LocalizationState] = {}
         self._beta_in: dict[int, tuple[float, Vec3]] = {}  # j -> (stamp, beta_ji)
         self._sfm_in: dict[int, tuple[float, float]] = {}  # j -> (stamp, chihat_ij)
+        self._e_folds_in: dict[int, float] = {}  # j -> alpha int lambda dt of edge (j, self)
         self._cons_in: dict[str, dict[int, tuple[float, list[float], list[float]]]] = {}
         self._heard: dict[int, float] = {}
         self._lam_table: dict[tuple[int, int], tuple[float, float]] = {}  # edge -> (stamp, lambda)
@@ -334,6 +338,8 @@ class AgentCore:
         for m, peer in enumerate(msg.peers):
             if peer == self.id:
                 self._sfm_in[j] = (msg.stamp_s, msg.chi_hat_inv_m[m])
+                if len(msg.e_folds) == n:
+                    self._e_folds_in[j] = msg.e_folds[m]
 
     def _on_excitation(self, j: int, msg: ExcitationTable) -> None:
         n = len(msg.first)
@@ -418,6 +424,7 @@ class AgentCore:
                     chi_hat_inv_m=[e.chi_hat for _, e in ran],
                     excitation=[e.excitation for _, e in ran],
                     e_index=[e.e_index for _, e in ran],
+                    e_folds=[e.alpha * e.excitation_integral for _, e in ran],
                 )
             )
 
@@ -740,4 +747,22 @@ class AgentCore:
             lambda_bar=self.lambda_bar,
             neighbours=sorted(j for j, s in self._heard.items() if t - s <= 1.0),
             rigidity_eigenvalue=lam,
+            scale_converged=self.scale_converged(),
         )
+
+    def scale_converged(self) -> bool:
+        """Whether the metric scale can be trusted, from onboard information only: the network's
+        convergence index ``E`` (eq. 10) is below ``e_low`` and every SfM edge this agent runs has
+        been excited enough (:attr:`SfmEdge.excitation_integral`; shared in
+        :class:`messages.peer.SfmEstimate` for the edges a neighbour runs), since ``E`` is also
+        small before any motion."""
+        cfg = self.config
+        if not self.paper000 or not self.reciprocal or self.e_index >= cfg.e_low:
+            return False
+        folds = [
+            self.sfm[j].alpha * self.sfm[j].excitation_integral
+            if j in self.sfm
+            else self._e_folds_in.get(j, 0.0)
+            for j in self.reciprocal
+        ]
+        return min(folds) >= cfg.converged_e_folds

@@ -145,6 +145,10 @@ class SfmEdge:
     excitation: float = 0.0
     e_index: float = 0.0
     last_frame_s: float = -math.inf
+    excitation_integral: float = 0.0
+    """``int lambda dt``: under persistent excitation the estimation error decays roughly like
+    ``exp(-alpha int lambda dt)`` (eq. 9), so ``alpha`` times this says how many e-foldings the
+    initial error has had."""
 
     def new_bearing(self, beta: Vec3, stamp_s: float, t_s: float, u_ij: Vec3, w_i: float) -> None:
         """Take a camera frame captured at ``stamp_s`` and predict it forward to ``t_s``."""
@@ -165,6 +169,7 @@ class SfmEdge:
         )
         x0, x1, x2 = beta_hat[0] - beta[0], beta_hat[1] - beta[1], beta_hat[2] - beta[2]
         self.excitation = excitation(beta, u_ij)
+        self.excitation_integral += dt * self.excitation
         self.e_index = self.window.add(t_s, x0 * x0 + x1 * x1 + x2 * x2, dt)
         self.beta_pred = predict_bearing(beta, self.chi_hat, u_ij, w_i, dt)
         self.beta_hat = (

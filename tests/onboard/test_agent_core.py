@@ -141,3 +141,13 @@ def test_bad_input_is_counted_not_fatal():
         "bad_bearing": 2,
     }
     assert all(math.isfinite(x) for x in sp.v_body)
+
+
+def test_scale_converged_needs_excitation_not_just_a_small_convergence_index():
+    """``E`` is small before anything moved; the status flag must wait for the excitation."""
+    early, _, _ = _run_team(0.2)
+    assert not any(c.scale_converged() or c.status().scale_converged for c in early)
+    cores, p, _ = _run_team(3.0)
+    assert all(c.status().scale_converged for c in cores)
+    for i, j in ((0, 1), (1, 2)):
+        assert cores[i].chi_hat(j) == pytest.approx(1 / np.linalg.norm(p[j] - p[i]), rel=0.01)
