@@ -153,6 +153,14 @@ def demo(
         float,
         typer.Option(help="Fault injection: fraction of peer messages every daemon drops."),
     ] = 0.0,
+    headless: Annotated[
+        bool,
+        typer.Option(
+            "--headless",
+            help="Fly the same agent configurations in the headless runner instead "
+            "(no processes, no sockets; 30 ms network latency): the reference for the real run.",
+        ),
+    ] = False,
 ) -> None:
     """Fly a whole simulated mission: simulator + one daemon per vehicle, live table, summary."""
     from groundstation.demo import run_demo
@@ -170,6 +178,9 @@ def demo(
     if bearings not in ("sim", "camera"):
         typer.echo("error: --bearings must be sim or camera", err=True)
         raise typer.Exit(2)
+    if headless:
+        _headless(vehicles, seed, duration, mode, loss, json)
+        return
     speed = speedup if speedup is not None else (0.25 if bearings == "camera" else 1.0)
     if not speed > 0.0:
         typer.echo("error: --speedup must be > 0", err=True)
@@ -226,6 +237,25 @@ def demo(
         sys.stdout.write(jsonlib.dumps(summary) + "\n")
     else:
         console.print_json(jsonlib.dumps(summary))
+
+
+def _headless(vehicles: int, seed: int, duration: float, mode: str, loss: float, json: bool):
+    from rich.progress import Progress
+
+    from groundstation.demo_headless import headless_demo
+
+    console = Console(stderr=True)
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task(f"headless mission, {vehicles} vehicles, {duration:.0f} s", total=1.0)
+        summary, _ = headless_demo(
+            vehicles, seed, duration, mode=mode, loss=loss,
+            progress=lambda f: bar.update(task, completed=f),
+        )  # fmt: skip
+    summary["headless"] = True
+    if json:
+        sys.stdout.write(jsonlib.dumps(summary) + "\n")
+    else:
+        Console().print_json(jsonlib.dumps(summary))
 
 
 class _Null:

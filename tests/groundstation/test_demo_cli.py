@@ -1,0 +1,39 @@
+"""``bearingflock demo``: argument errors exit 2 with a message; ``--headless`` flies the demo's
+configurations in the headless runner and reports the same summary keys as the real demo."""
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from groundstation.cli import app
+
+runner = CliRunner()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--vehicles", "2"], "--vehicles"),
+        (["--loss", "1.0"], "--loss"),
+        (["--flavour", "inav"], "--flavour"),
+        (["--bearings", "lidar"], "--bearings"),
+    ],
+)
+def test_bad_arguments_exit_2_with_a_message(args, message):
+    result = runner.invoke(app, ["demo", *args])
+    assert result.exit_code == 2
+    assert message in result.output
+
+
+def test_headless_demo_reports_the_summary_keys():
+    result = runner.invoke(
+        app, ["demo", "--headless", "--vehicles", "3", "--duration", "4", "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    for k in ("vehicles", "time_to_scale_s", "final_scale_error", "final_bearing_error_deg",
+              "min_rigidity_eigenvalue", "dropped_messages"):  # fmt: skip
+        assert k in summary
+    assert summary["vehicles"] == 3 and summary["headless"] is True
+    assert 0.0 <= summary["final_scale_error"] < 1.0
