@@ -43,7 +43,7 @@ class SfmEstimate(Payload, tag="peer.sfm"):
     """Results of the inverse-depth observers (eq. 8) the sender runs, one entry per reciprocal
     edge ``(sender, peers[m])`` (the lower id runs the edge and shares it with the other end).
     ``e_index`` is ``E_ij`` of eq. 10 (window average of ``|xi|^2``), ``excitation`` is
-    ``lambda_ij = u_ij^T P_ij u_ij``; ``e_folds`` is ``alpha int lambda_ij dt`` (how far the
+    ``lambda_ij = u_ij^T P_ij u_ij``; ``e_folds`` is ``int sqrt(alpha lambda_ij) dt`` (how far the
     observer has converged, empty from senders that predate it)."""
 
     peers: list[int]

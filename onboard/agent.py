@@ -120,8 +120,11 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     e_low: float = 1e-4
     e_high: float = 1e-3
     converged_e_folds: float = 5.0
-    """``scale_converged`` (status) needs ``alpha int lambda dt`` at least this on every SfM edge
-    the agent runs (``exp(-5)``: under 1% of the initial error left) and ``E < e_low``."""
+    """An SfM edge counts as excited once ``int sqrt(alpha lambda) dt`` (the e-foldings of its
+    error, :attr:`SfmEdge.e_folds`) reaches this (``exp(-5)``: under 1% of the initial error
+    left). Until every edge is, each of its owners adds ``e_high`` to its share of ``E``, so the
+    gate ``k_E(E)`` of eq. 16 keeps the active motion on: ``E`` alone is also small while an edge
+    that was barely excited is still wrong (demo runs stalled at 4% this way). Not in the paper."""
     # formation (paper 002 eq. 20) and yaw alignment
     k_formation: float = 0.5
     k_yaw: float = 1.0
@@ -253,7 +256,7 @@ class AgentCore:
         self._loc: dict[int, LocalizationState] = {}
         self._beta_in: dict[int, tuple[float, Vec3]] = {}  # j -> (stamp, beta_ji)
         self._sfm_in: dict[int, tuple[float, float]] = {}  # j -> (stamp, chihat_ij)
-        self._e_folds_in: dict[int, float] = {}  # j -> alpha int lambda dt of edge (j, self)
+        self._e_folds_in: dict[int, float] = {}  # j -> e-foldings of edge (j, self)
         self._cons_in: dict[str, dict[int, tuple[float, list[float], list[float]]]] = {}
         self._heard: dict[int, float] = {}
         self._lam_table: dict[tuple[int, int], tuple[float, float]] = {}  # edge -> (stamp, lambda)
@@ -424,7 +427,7 @@ class AgentCore:
                     chi_hat_inv_m=[e.chi_hat for _, e in ran],
                     excitation=[e.excitation for _, e in ran],
                     e_index=[e.e_index for _, e in ran],
-                    e_folds=[e.alpha * e.excitation_integral for _, e in ran],
+                    e_folds=[e.e_folds for _, e in ran],
                 )
             )
 
@@ -629,7 +632,10 @@ class AgentCore:
                     stamps_s=[v[0] for _, v in fresh],
                 )
             )
-        e_sum = sum(e.e_index for e in self.sfm.values())
+        e_sum = sum(
+            e.e_index + (cfg.e_high if e.e_folds < cfg.converged_e_folds else 0.0)
+            for e in self.sfm.values()
+        )
         x = self._consensus_step("e_index", dt, t_s, [e_sum])
         self.e_index = max(n * x[0], 0.0)
         if cfg.mode != "formation-active":
@@ -753,16 +759,14 @@ class AgentCore:
     def scale_converged(self) -> bool:
         """Whether the metric scale can be trusted, from onboard information only: the network's
         convergence index ``E`` (eq. 10) is below ``e_low`` and every SfM edge this agent runs has
-        been excited enough (:attr:`SfmEdge.excitation_integral`; shared in
+        been excited enough (:attr:`SfmEdge.e_folds`; shared in
         :class:`messages.peer.SfmEstimate` for the edges a neighbour runs), since ``E`` is also
         small before any motion."""
         cfg = self.config
         if not self.paper000 or not self.reciprocal or self.e_index >= cfg.e_low:
             return False
         folds = [
-            self.sfm[j].alpha * self.sfm[j].excitation_integral
-            if j in self.sfm
-            else self._e_folds_in.get(j, 0.0)
+            self.sfm[j].e_folds if j in self.sfm else self._e_folds_in.get(j, 0.0)
             for j in self.reciprocal
         ]
         return min(folds) >= cfg.converged_e_folds

@@ -145,10 +145,11 @@ class SfmEdge:
     excitation: float = 0.0
     e_index: float = 0.0
     last_frame_s: float = -math.inf
-    excitation_integral: float = 0.0
-    """``int lambda dt``: under persistent excitation the estimation error decays roughly like
-    ``exp(-alpha int lambda dt)`` (eq. 9), so ``alpha`` times this says how many e-foldings the
-    initial error has had."""
+    e_folds: float = 0.0
+    """``int sqrt(alpha lambda) dt``: with the SVD-shaped gain the (bearing, inverse depth) error
+    pair is the critically damped ``s^2 + c1 s + alpha lambda`` (module docstring), so the
+    estimation error decays like ``exp(-int sqrt(alpha lambda) dt)``: this counts the e-foldings
+    the initial error has had (5: under 1% left)."""
 
     def new_bearing(self, beta: Vec3, stamp_s: float, t_s: float, u_ij: Vec3, w_i: float) -> None:
         """Take a camera frame captured at ``stamp_s`` and predict it forward to ``t_s``."""
@@ -169,7 +170,7 @@ class SfmEdge:
         )
         x0, x1, x2 = beta_hat[0] - beta[0], beta_hat[1] - beta[1], beta_hat[2] - beta[2]
         self.excitation = excitation(beta, u_ij)
-        self.excitation_integral += dt * self.excitation
+        self.e_folds += dt * math.sqrt(self.alpha * self.excitation)
         self.e_index = self.window.add(t_s, x0 * x0 + x1 * x1 + x2 * x2, dt)
         self.beta_pred = predict_bearing(beta, self.chi_hat, u_ij, w_i, dt)
         self.beta_hat = (

@@ -148,6 +148,7 @@ def test_scale_converged_needs_excitation_not_just_a_small_convergence_index():
     early, _, _ = _run_team(0.2)
     assert not any(c.scale_converged() or c.status().scale_converged for c in early)
     cores, p, _ = _run_team(3.0)
-    assert all(c.status().scale_converged for c in cores)
+    owners = [c for c in cores if c.sfm]  # agent 2 runs no edge: it waits for the consensus on E
+    assert len(owners) == 2 and all(c.status().scale_converged for c in owners)
     for i, j in ((0, 1), (1, 2)):
         assert cores[i].chi_hat(j) == pytest.approx(1 / np.linalg.norm(p[j] - p[i]), rel=0.01)
