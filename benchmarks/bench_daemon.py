@@ -53,7 +53,9 @@ def _sim_overruns(out: Path) -> tuple[int, int]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[3, 6, 9])
-    parser.add_argument("--duration", type=float, default=40.0, help="wall seconds per run")
+    parser.add_argument(
+        "--duration", type=float, default=40.0, help="simulation seconds per run (real time)"
+    )
     parser.add_argument("--quick", action="store_true", help="N = 3 and 6, 25 s each")
     args = parser.parse_args()
     sizes, duration = ([3, 6], 25.0) if args.quick else (args.sizes, args.duration)

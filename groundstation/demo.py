@@ -37,6 +37,17 @@ from onboard.graph import normalize_edges, reciprocal_pairs
 from onboard.rigidity.bearing import ibr_r3s1
 
 LANDING_TIMEOUT_S = 30.0
+"""Simulation seconds the vehicles get to land after the mission."""
+WALL_SLACK = 2.0
+"""The demo also stops after ``WALL_SLACK x`` the wall time its simulation time should take
+(plus :data:`STARTUP_WALL_S`): a simulator slower than its speed-up, or stalled, cannot hang it."""
+STARTUP_WALL_S = 30.0
+CAMERA_STALE_FRAMES = 4.0
+"""Camera bearings: the daemons hold when their newest frame is older than this many frame
+periods (at least the fleet default, 0.5 s). Rendered frames come 5-10 per simulation second
+and 0.05-0.15 s late, and the renderer drops a frame when it falls behind: with the default
+0.5 s, one dropped frame at 5 Hz stopped the vehicle, and the holds stalled the scale estimate
+(docs/vision.md, "Flying on camera bearings")."""
 LANDED_HEIGHT_M = 0.2
 SCALE_TOLERANCE = 0.02
 """Relative distance error below which an SfM edge counts as having the metric scale."""
@@ -325,7 +336,9 @@ def run_demo(
     ``bearings = "camera"``: the simulator renders every vehicle's camera rig (``camera_files``,
     camera_id = order) with the markers of ``markers_file`` at ``render_rate_hz`` of simulation
     time, and the agents take their bearings from those images. ``speedup`` is the simulator's
-    (< 1 gives rendering the wall time it needs); ``duration_s`` is wall time."""
+    (< 1 gives rendering the wall time it needs). ``duration_s`` (mission, from the first truth
+    sample) and the landing timeout are simulation time; ``on_tick`` gets the mission's
+    simulation seconds so far."""
     from sim.server import free_port_base
 
     base = free_port_base(vehicles + 2, span=60, seed=None)
@@ -333,6 +346,10 @@ def run_demo(
     plan = plan_formation(vehicles, seed)
     fleet = f"demo{base}"
     fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss)
+    if bearings == "camera":
+        stale_s = max(0.5, CAMERA_STALE_FRAMES / render_rate_hz)
+        with fleet_path.open("a") as f:
+            f.write(f"[limits]\nstale_s = {stale_s:.3f}\n")
     procs = Processes(out)
     evaluator: Evaluator | None = None
     rig = [a for f in camera_files for a in ("--camera", str(f))]
@@ -369,23 +386,42 @@ def run_demo(
                 connect=[loopback_endpoint(ports.zenoh + k) for k in range(vehicles + 1)]
             ),
         )
-        t0 = time.monotonic()
+        ev = evaluator
+
+        def sim_now() -> float | None:
+            stamps = [tr.stamp_s for tr in list(ev.truth.values())]
+            return max(stamps) if stamps else None
+
+        def wall_deadline(sim_s: float) -> float:
+            return time.monotonic() + STARTUP_WALL_S + WALL_SLACK * sim_s / speedup
+
+        t0_sim: float | None = None
+        deadline = wall_deadline(duration_s)
         phase = "mission"
-        while time.monotonic() - t0 < duration_s:
+        while time.monotonic() < deadline:
             time.sleep(0.1)
             evaluator.sample()
             if dead := procs.dead():
                 raise RuntimeError(f"process(es) died: {', '.join(dead)} (logs in {out})")
+            now = sim_now()
+            t0_sim = now if t0_sim is None else t0_sim
+            elapsed = 0.0 if now is None or t0_sim is None else now - t0_sim
             if on_tick is not None:
-                on_tick(evaluator, time.monotonic() - t0, phase)
+                on_tick(evaluator, elapsed, phase)
+            if elapsed >= duration_s:
+                break
         summary = summarize(evaluator, vehicles)
         evaluator.command_all("land")
         phase = "landing"
-        t_land = time.monotonic()
-        while time.monotonic() - t_land < LANDING_TIMEOUT_S and not evaluator.all_landed():
+        land_from = sim_now()
+        deadline = wall_deadline(LANDING_TIMEOUT_S)
+        while time.monotonic() < deadline and not evaluator.all_landed():
             time.sleep(0.2)
+            now = sim_now()
+            if land_from is not None and now is not None and now - land_from >= LANDING_TIMEOUT_S:
+                break
             if on_tick is not None:
-                on_tick(evaluator, time.monotonic() - t0, phase)
+                on_tick(evaluator, duration_s, phase)
         summary["landed"] = evaluator.all_landed()
         return summary
     finally:

@@ -68,6 +68,19 @@ BALL_COLOURS_HSV = ((0, "red"), (30, "yellow"), (60, "green"), (90, "cyan"), (12
                     (150, "magenta"))  # fmt: skip
 """Hues (OpenCV H 0-179) of the balls the vehicles carry: one identity per colour."""
 HUE_HALF_WIDTH = 10
+CAMERA_SPEEDUP = 0.5
+"""Default simulation speed with camera bearings: rendering three vehicles at 5 frames per
+simulation second needs about half of one core of this machine at this speed."""
+CAMERA_RENDER_RATE_HZ = 5.0
+HEARTBEAT_PERIOD_SIM_S = 1.0
+"""The simulated autopilots' HEARTBEAT period (simulation time, ``sim/autopilot/telemetry.py``)."""
+LINK_HEARTBEAT_TIMEOUT_WALL_S = 3.0
+"""The daemons' autopilot links call the link lost after this many *wall* seconds without a
+heartbeat (``onboard.autopilot.base.LinkConfig.heartbeat_timeout_s``)."""
+MIN_SPEEDUP = HEARTBEAT_PERIOD_SIM_S / (0.8 * LINK_HEARTBEAT_TIMEOUT_WALL_S)
+"""Slower simulations space heartbeats so far apart in wall time that the links flap between
+connected and lost: at 0.25 the daemons stopped stepping for about 1 s of every 4 (docs/vision.md,
+"Flying on camera bearings")."""
 
 
 def write_camera_rig(
@@ -122,7 +135,9 @@ def write_camera_rig(
 def demo(
     vehicles: Annotated[int, typer.Option(help="Number of vehicles.")] = 6,
     flavour: Annotated[str, typer.Option(help="px4 or ardupilot.")] = "px4",
-    duration: Annotated[float, typer.Option(help="Mission time before landing (s).")] = 60.0,
+    duration: Annotated[
+        float, typer.Option(help="Mission time before landing (simulation s).")
+    ] = 60.0,
     out: Annotated[Path | None, typer.Option(help="Directory for logs, data and plots.")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the formation and of all noise.")] = 0,
     mode: Annotated[str, typer.Option(help="Agent core mode.")] = "formation-active",
@@ -134,7 +149,7 @@ def demo(
     ] = "sim",
     speedup: Annotated[
         float | None,
-        typer.Option(help="Simulation speed (sim s per wall s) [1 with sim, 0.25 with camera]."),
+        typer.Option(help="Simulation speed (sim s per wall s) [1 with sim, 0.5 with camera]."),
     ] = None,
     cameras: Annotated[
         int, typer.Option(help="Camera bearings: 1 (forward) or a ring of 3 or more.")
@@ -148,7 +163,7 @@ def demo(
     ] = "320x240",
     render_rate: Annotated[
         float, typer.Option(help="Camera bearings: frames per simulation second.")
-    ] = 10.0,
+    ] = CAMERA_RENDER_RATE_HZ,
     loss: Annotated[
         float,
         typer.Option(help="Fault injection: fraction of peer messages every daemon drops."),
@@ -181,9 +196,17 @@ def demo(
     if headless:
         _headless(vehicles, seed, duration, mode, loss, json)
         return
-    speed = speedup if speedup is not None else (0.25 if bearings == "camera" else 1.0)
-    if not speed > 0.0:
-        typer.echo("error: --speedup must be > 0", err=True)
+    speed = speedup if speedup is not None else (CAMERA_SPEEDUP if bearings == "camera" else 1.0)
+    if not speed >= MIN_SPEEDUP:
+        typer.echo(
+            f"error: --speedup must be >= {MIN_SPEEDUP:.2f}: slower, the simulator's heartbeats "
+            f"(every {HEARTBEAT_PERIOD_SIM_S:g} simulation s) come too far apart for the "
+            f"daemons' {LINK_HEARTBEAT_TIMEOUT_WALL_S:g} s (wall) link timeout",
+            err=True,
+        )
+        raise typer.Exit(2)
+    if not render_rate > 0.0:
+        typer.echo("error: --render-rate must be > 0", err=True)
         raise typer.Exit(2)
     out_dir = out or Path(tempfile.mkdtemp(prefix="bearingflock-demo-"))
     camera_files: list[Path] = []
@@ -200,17 +223,16 @@ def demo(
         except ValueError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2) from None
-    wall_s = duration / speed  # --duration is mission time in simulation seconds
     console = Console(stderr=json)
     live_view = console.is_terminal and not json
     last_print = [-10.0]
 
     def on_tick(ev, elapsed_s: float, phase: str) -> None:
         if live_view:
-            live.update(_table(ev, elapsed_s, phase, wall_s))
+            live.update(_table(ev, elapsed_s, phase, duration))
         elif elapsed_s - last_print[0] >= 5.0:
             last_print[0] = elapsed_s
-            console.print(_table(ev, elapsed_s, phase, wall_s))
+            console.print(_table(ev, elapsed_s, phase, duration))
 
     try:
         with (
@@ -219,7 +241,7 @@ def demo(
             else _Null() as live
         ):
             summary = run_demo(
-                vehicles, flavour, wall_s, out_dir, seed, mode, on_tick, bearings=bearings,
+                vehicles, flavour, duration, out_dir, seed, mode, on_tick, bearings=bearings,
                 camera_files=camera_files, markers_file=markers_file, speedup=speed,
                 render_rate_hz=render_rate, loss=loss,
             )  # fmt: skip

@@ -53,9 +53,9 @@ from sim.render import (
     Background,
     Renderer,
     RenderMarker,
-    _tag_cells,
     make_background,
     marker_rotation,
+    tag_cells,
 )
 from sim.world import World, tilt_from_specific_force
 
@@ -191,7 +191,7 @@ class ImagePublisher:
         room = background if background is not None else make_background(config.seed)
         self.renderers = [Renderer(cam, room) for cam in cameras]
         self.markers = {m.id: m for m in markers}
-        self._cells = {m.id: _tag_cells(m.family) for m in markers if m.kind == "tag"}
+        self._cells = {m.id: tag_cells(m.family) for m in markers if m.kind == "tag"}
         self.next_t_s = 0.0
         self.frame_index = 0
         self.stats = RenderStats()

@@ -113,6 +113,10 @@ class Renderer:
         self._rays_cam = np.concatenate([rays, np.ones((*rays.shape[:2], 1))], axis=-1).astype(
             np.float32
         )
+        self._x_cam = np.ascontiguousarray(self._rays_cam[..., 0])
+        self._y_cam = np.ascontiguousarray(self._rays_cam[..., 1])
+        """Normalized image coordinates of every pixel (the ray is ``(x, y, 1)`` in the camera
+        frame), as contiguous planes: the background is computed one NED axis at a time."""
 
     def camera_pose(
         self, p_ned: ArrayLike, roll_rad: float, pitch_rad: float, yaw_rad: float
@@ -142,33 +146,44 @@ class Renderer:
             self._draw_marker(img, markers[int(k)], r_ned_cam, c_ned)
         if blur_sigma_px > 0.0:
             img = cv2.GaussianBlur(img, (0, 0), blur_sigma_px)
-        out = img
         if noise_std > 0.0:
-            rng = np.random.default_rng(seed)
-            out = img + rng.normal(0.0, noise_std, img.shape).astype(np.float32)
-        return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+            noise = np.random.default_rng(seed).standard_normal(img.shape, dtype=np.float32)
+            noise *= np.float32(noise_std)
+            img += noise
+        np.rint(img, out=img)
+        np.clip(img, 0.0, 255.0, out=img)
+        return img.astype(np.uint8)
 
     # --- background -------------------------------------------------------------------------
 
     def _background(self, r_ned_cam: FloatArray, c_ned: FloatArray) -> np.ndarray:
+        """BGR float32 image of the room: each pixel's ray leaves ``c_ned`` and hits the first
+        wall of the box (the smallest positive ray parameter over the three axes; ties go to the
+        lower axis), whose tinted texture is sampled there. Computed on ``(H, W)`` planes, one
+        NED axis at a time (no ``(H, W, 3)`` temporaries: they dominated the frame time)."""
         bg = self.background
-        d = self._rays_cam @ r_ned_cam.T.astype(np.float32)  # (H, W, 3) NED directions
+        r = r_ned_cam.astype(np.float32)
         lo = np.array([-bg.half_size_m, -bg.half_size_m, -bg.height_m], dtype=np.float32)
         hi = np.array([bg.half_size_m, bg.half_size_m, 0.0], dtype=np.float32)
-        c = np.clip(c_ned, lo + 1e-3, hi - 1e-3).astype(np.float32)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_axis = np.where(d > 0, (hi - c) / d, np.where(d < 0, (lo - c) / d, np.inf))
-        axis = np.argmin(t_axis, axis=-1)
-        t = np.take_along_axis(t_axis, axis[..., None], axis=-1)
-        hit = c + t * d
-        face = 2 * axis + (np.take_along_axis(d, axis[..., None], axis=-1)[..., 0] > 0)
-        # in-plane coordinates of each face, scaled to [0, 1]
         span = np.array([2 * bg.half_size_m, 2 * bg.half_size_m, bg.height_m], dtype=np.float32)
-        frac = (hit - lo) / span
-        u_axis = np.where(axis == 0, 1, 0)
-        v_axis = np.where(axis == 2, 1, 2)
-        fu = np.take_along_axis(frac, u_axis[..., None], axis=-1)[..., 0]
-        fv = np.take_along_axis(frac, v_axis[..., None], axis=-1)[..., 0]
+        c = np.clip(c_ned, lo + 1e-3, hi - 1e-3).astype(np.float32)
+        # NED ray directions, one plane per axis: d_a = R[a, 0] x + R[a, 1] y + R[a, 2]
+        d = [self._x_cam * r[a, 0] + self._y_cam * r[a, 1] + r[a, 2] for a in range(3)]
+        t_hit = np.full(self._x_cam.shape, np.inf, dtype=np.float32)
+        axis = np.zeros(self._x_cam.shape, dtype=np.int32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for a in range(3):
+                t_a = np.where(d[a] > 0, (hi[a] - c[a]) / d[a], (lo[a] - c[a]) / d[a])
+                t_a[d[a] == 0] = np.inf
+                nearer = t_a < t_hit
+                np.copyto(t_hit, t_a, where=nearer)
+                axis[nearer] = a
+        # where the ray hits, as fractions of the room along each axis
+        frac = [(c[a] + t_hit * d[a] - lo[a]) / span[a] for a in range(3)]
+        d_hit = np.where(axis == 0, d[0], np.where(axis == 1, d[1], d[2]))
+        face = 2 * axis + (d_hit > 0)
+        fu = np.where(axis == 0, frac[1], frac[0])  # in-plane texture coordinates of each face
+        fv = np.where(axis == 2, frac[1], frac[2])
         size = bg.atlas.shape[0]
         map_x = (face * size + np.clip(fu, 0.0, 1.0) * (size - 1)).astype(np.float32)
         map_y = (np.clip(fv, 0.0, 1.0) * (size - 1)).astype(np.float32)
@@ -183,7 +198,7 @@ class Renderer:
         cam = self.camera
         half = 0.5 * m.size_m
         if m.kind == "tag":
-            half *= 1.0 + 2.0 * TAG_QUIET_CELLS / _tag_cells(m.family)
+            half *= 1.0 + 2.0 * TAG_QUIET_CELLS / tag_cells(m.family)
             outline = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float) * half
         else:
             th = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
@@ -243,14 +258,14 @@ class Renderer:
         return np.repeat(grey[..., None], 3, axis=-1), inside
 
 
-def _tag_cells(family: str) -> int:
+def tag_cells(family: str) -> int:
     """Cells across the black square: data bits + the 1-cell black border on each side."""
     return int(dictionary(family).markerSize) + 2
 
 
 def _tag_texture(family: str, tag_id: int, px_per_cell: int = 16) -> np.ndarray:
     """The marker image with its white quiet zone, ``px_per_cell`` pixels per cell."""
-    cells = _tag_cells(family)
+    cells = tag_cells(family)
     core = cv2.aruco.generateImageMarker(dictionary(family), tag_id, cells * px_per_cell, 1)
     q = TAG_QUIET_CELLS * px_per_cell
     return cv2.copyMakeBorder(core, q, q, q, q, cv2.BORDER_CONSTANT, value=255)

@@ -6,10 +6,14 @@ import logging
 import math
 import signal
 import sys
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+
+SIM_CLOCK_WAIT_S = 10.0
+"""How long a daemon with ``clock = "sim"`` waits for the simulator's clock before its link."""
 
 
 def agent(
@@ -102,8 +106,16 @@ def agent(
 
         peers.subscribe(clock_key(c.fleet), on_clock)
         clock = follower
+        # The simulator's autopilots send a heartbeat per *simulated* second: slower than real
+        # time they arrive 1/speedup wall seconds apart, and a wall-clock heartbeat timeout would
+        # declare the link lost between two of them. Learn the speed before opening the link.
+        t0 = time.monotonic()
+        while follower.now() is None and time.monotonic() - t0 < SIM_CLOCK_WAIT_S:
+            time.sleep(0.05)
+        slowdown = 1.0 / min(1.0, max(follower.speedup, 1e-3))
     else:
         clock = WallClock()
+        slowdown = 1.0
     link = open_link(
         backend or c.mavlink.backend,
         LinkConfig(
@@ -111,6 +123,7 @@ def agent(
             max_speed_xy_mps=c.limits.max_speed_m_s,
             max_speed_z_mps=c.limits.max_speed_m_s,
             max_yaw_rate_radps=c.limits.max_yaw_rate_rad_s,
+            heartbeat_timeout_s=LinkConfig.heartbeat_timeout_s * slowdown,
         ),
     )
     on_status = None

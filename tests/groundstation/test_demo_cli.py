@@ -18,6 +18,9 @@ runner = CliRunner()
         (["--loss", "1.0"], "--loss"),
         (["--flavour", "inav"], "--flavour"),
         (["--bearings", "lidar"], "--bearings"),
+        (["--bearings", "camera", "--speedup", "0.25"], "--speedup"),
+        (["--speedup", "0"], "--speedup"),
+        (["--bearings", "camera", "--render-rate", "0"], "--render-rate"),
     ],
 )
 def test_bad_arguments_exit_2_with_a_message(args, message):

@@ -10,7 +10,15 @@ import pytest
 
 from onboard.vision.camera import CameraModel
 from onboard.vision.tags import dictionary
-from sim.render import Renderer, RenderMarker, make_background, marker_rotation, place_in_view
+from sim.render import (
+    Background,
+    Renderer,
+    RenderMarker,
+    make_background,
+    marker_rotation,
+    place_in_view,
+    tag_cells,
+)
 
 DIST = (-0.2, 0.05, 0.0, 0.0, 0.0)
 
@@ -103,3 +111,56 @@ def test_seeded_and_options(background) -> None:
     grad = lambda im: np.abs(np.diff(im.astype(float), axis=1)).mean()  # noqa: E731
     assert grad(blurred) < 0.7 * grad(clean)
     np.testing.assert_array_equal(make_background(5, texture_px=256).atlas, background.atlas)
+
+
+def _wall_hit(c: np.ndarray, d: np.ndarray, half: float, height: float) -> tuple[int, float]:
+    """Independent ray-box intersection for one ray, face by face: ``(face, u)`` of the first
+    wall the ray from ``c`` along ``d`` reaches (faces -x, +x, -y, +y, ceiling, ground; ``u``
+    the in-plane texture coordinate in [0, 1])."""
+    walls = [(0, -half), (0, half), (1, -half), (1, half), (2, -height), (2, 0.0)]
+    best = (math.inf, -1)
+    for face, (axis, level) in enumerate(walls):
+        if d[axis] != 0.0 and (level - c[axis]) / d[axis] > 0.0:
+            best = min(best, ((level - c[axis]) / d[axis], face))
+    t, face = best
+    hit = c + t * d
+    u = hit[1] if face < 2 else hit[0]
+    return face, (u + half) / (2.0 * half)
+
+
+def test_background_is_the_wall_each_pixel_ray_hits() -> None:
+    """A room whose faces have distinct grey levels (face) or one grey ramp along the texture's
+    u axis: every pixel shows the face, and the place on it, that a per-ray intersection with
+    the six walls gives."""
+    size, half, height = 64, 10.0, 6.0
+    ramp = np.tile(np.linspace(0.0, 250.0, size), (size, 1))
+    flat = np.concatenate([np.full((size, size), 20.0 + 40.0 * k) for k in range(6)], axis=1)
+    ones = np.ones((6, 3))
+    cam = CameraModel.from_fov(160, 120, 100.0)
+    faces = Renderer(cam, Background(half, height, flat.astype(np.uint8), ones))
+    us = Renderer(cam, Background(half, height, np.tile(ramp, (1, 6)).astype(np.uint8), ones))
+    rng = np.random.default_rng(3)
+    checked = 0
+    for _ in range(6):
+        pose = (
+            rng.uniform([-8, -8, -5], [8, 8, -1]),
+            *rng.uniform([-0.4, -0.4, -3], [0.4, 0.4, 3]),
+        )
+        img_face = faces.render(*pose)[..., 0].astype(float)
+        img_u = us.render(*pose)[..., 0].astype(float)
+        r_ned_cam, c_ned = faces.camera_pose(*pose)
+        for v, u in rng.integers([1, 1], [119, 159], size=(40, 2)):
+            patch = img_face[v - 1 : v + 2, u - 1 : u + 2]
+            if np.ptp(patch) > 0:
+                continue  # next to a face edge: bilinear mixing of two faces
+            d = r_ned_cam @ cam.pixels_to_rays_cam(np.array([u, v], dtype=float))
+            face, frac_u = _wall_hit(c_ned, d, half, height)
+            assert img_face[v, u] == 20.0 + 40.0 * face
+            assert img_u[v, u] == pytest.approx(250.0 * frac_u, abs=1.5)
+            checked += 1
+    assert checked > 150
+
+
+def test_tag_cells_counts_border_and_data_cells() -> None:
+    assert tag_cells("apriltag_36h11") == 8
+    assert tag_cells("4x4_50") == 6
