@@ -16,8 +16,9 @@ SPEEDUP = 0.5
 """Simulation seconds per wall second. Six daemons and the simulator need about 1.5 of this
 machine's 2 cores in real time; at half speed the run is about timing-independent, which is
 what a correctness test needs (real-time capacity is measured by benchmarks/bench_daemon.py)."""
-MISSION_S = 30.0
-"""Simulation seconds of mission (take-off included, about 8 s) before the demo lands everyone."""
+MISSION_S = 40.0
+"""Simulation seconds of mission before the demo lands everyone: take-off (about 8 s), the active
+motion until every SfM edge is excited (10-20 s), then the formation settles (about 10 s)."""
 SCALE_TOLERANCE = 0.02
 BEARING_TOLERANCE_DEG = 3.0
 
