@@ -21,24 +21,26 @@ numpy evaluation of max_i tr(Sigma_delta).
 ISRES budget: ``--isres-evals`` objective evaluations per variable (3M variables), population
 20 (see ``groundstation/planner/isres.py``). Everything runs on one core, sequentially.
 
-EKF validation (``--ekf``, paper 004 Section VII in miniature): a vehicle flies two laps of a
-60 m x 30 m rectangle 10 m up at 4 m/s; dead reckoning from velocity measurements (noise 1 m/s
-per axis at 10 Hz) is corrected by an EKF with bearings to M = 3 landmarks at 2 Hz (noise
-sigma_m = 0.1 per component, the planning model). The landmarks are placed by IPOPT for 16
-setpoints along the path, or drawn uniformly in the feasible set; the same noise sequences
-are used for both. Reported: mean position error over time and runs, and its reduction.
+Times are wall-clock and process CPU (``time.process_time``): the machine is shared, and the
+CPU time is the less load-sensitive of the two. ``--table3`` runs only the timing protocol
+(N = 10, M in {2, 5, 10}), adding the IPOPT solve with casadi's automatic Hessian
+(``IpoptPlacer(structured_hessian=False)``) as the baseline of the structured one.
 
-Usage: ``python benchmarks/bench_planner.py [--quick] [--instances I] [--runs R] [--json F]``
-or ``python benchmarks/bench_planner.py --ekf [--runs R]``.
+EKF validation: ``python benchmarks/bench_planner_ekf.py`` (``--ekf`` here runs it).
+
+Usage: ``python benchmarks/bench_planner.py [--quick] [--instances I] [--runs R] [--json F]``,
+``python benchmarks/bench_planner.py --table3 [--instances I] [--runs R]`` or ``--ekf``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,11 +51,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from groundstation.planner.greedy import solve_greedy
 from groundstation.planner.ipopt import IpoptPlacer, solve_ipopt
 from groundstation.planner.isres import solve_isres
-from groundstation.planner.problem import (
-    PlacementProblem,
-    make_problem,
-    random_feasible_landmarks,
-)
+from groundstation.planner.problem import PlacementProblem, PlacementResult, make_problem
 
 PRIOR_COV, SIGMA_M, BALL_M, R_MIN_M, R_MAX_M = 30.0, 0.1, 40.0, 5.0, 60.0
 PAPER_TABLE_I = {  # (N, M): (ours, greedy)
@@ -81,108 +79,80 @@ def random_instance(n: int, m: int, index: int, sigma_m: float = SIGMA_M) -> Pla
 
 @dataclass
 class Cell:
-    """Objectives and times of every method on one table cell."""
+    """Objectives and times (wall and CPU, s) of every method on one table cell."""
 
     objective: dict[str, list[float]] = field(default_factory=lambda: {k: [] for k in METHODS})
     seconds: dict[str, list[float]] = field(default_factory=dict)
+    cpu: dict[str, list[float]] = field(default_factory=dict)
     gaps: dict[str, list[float]] = field(default_factory=lambda: {k: [] for k in METHODS[:3]})
     greedy_vs_best: list[float] = field(default_factory=list)
 
-    def time(self, name: str, value: float) -> None:
-        self.seconds.setdefault(name, []).append(value)
+    def timed(
+        self, name: str, solve: Callable[..., PlacementResult], *args: object, **kwargs: object
+    ) -> PlacementResult:
+        """Run ``solve(*args, **kwargs)``; record its wall time (as it reports) and CPU time."""
+        cpu0 = time.process_time()
+        result = solve(*args, **kwargs)
+        self.cpu.setdefault(name, []).append(time.process_time() - cpu0)
+        self.seconds.setdefault(name, []).append(result.seconds)
+        return result
 
 
 def run_cell(
     n: int, m: int, instances: int, runs: int, evals_per_var: int, placer: IpoptPlacer,
-    sigma_m: float = SIGMA_M,
+    sigma_m: float = SIGMA_M, ad_placer: IpoptPlacer | None = None,
+    isres_runs: int | None = None,
 ) -> Cell:  # fmt: skip
+    """One table cell; ``ad_placer`` adds the automatic-Hessian baseline; ISRES (and so the
+    gaps) only on the first ``isres_runs`` runs of each instance (default: all)."""
     cell = Cell()
     for i in range(instances):
         problem = random_instance(n, m, i, sigma_m)
-        greedy = solve_greedy(problem)
-        cell.time("greedy", greedy.seconds)
+        greedy = cell.timed("greedy", solve_greedy, problem)
         for r in range(runs):
-            isres = solve_isres(problem, seed=r, max_evals=evals_per_var * 3 * m)
-            cold = solve_ipopt(problem, seed=r, starts=1)
-            warm = placer.solve(problem, seed=r, starts=1)
-            multi = placer.solve(problem, seed=r, starts=5)
+            cold = cell.timed("ipopt cold", solve_ipopt, problem, seed=r, starts=1)
+            warm = cell.timed("ipopt warm", placer.solve, problem, seed=r, starts=1)
+            multi = cell.timed("ipopt 5 starts warm", placer.solve, problem, seed=r, starts=5)
             assert abs(cold.objective - warm.objective) <= 1e-9 * cold.objective
-            cell.time("isres", isres.seconds)
-            cell.time("ipopt cold", cold.seconds)
-            cell.time("ipopt warm", warm.seconds)
-            cell.time("ipopt 5 starts warm", multi.seconds)
-            results = {"ipopt1": cold, "ipopt5": multi, "greedy": greedy, "isres": isres}
+            if ad_placer is not None:
+                ad = cell.timed(
+                    "ipopt warm, AD Hessian", ad_placer.solve, problem, seed=r, starts=1
+                )
+                cell.objective.setdefault("ipopt1 AD Hessian", []).append(ad.objective)
+            if isres_runs is not None and r >= isres_runs:
+                continue
+            ref = cell.timed("isres", solve_isres, problem, seed=r, max_evals=evals_per_var * 3 * m)
+            results = {"ipopt1": cold, "ipopt5": multi, "greedy": greedy, "isres": ref}
             for name, res in results.items():
                 cell.objective[name].append(res.objective)
                 if name != "isres":
-                    cell.gaps[name].append((res.objective - isres.objective) / isres.objective)
+                    cell.gaps[name].append((res.objective - ref.objective) / ref.objective)
             best = min(res.objective for res in results.values())
             cell.greedy_vs_best.append((greedy.objective - best) / best)
     return cell
 
 
-def rectangle_path(speed: float, dt: float, laps: int) -> np.ndarray:
-    """Positions (T, 3) along a 60 m x 30 m rectangle at height 10 m (NED down = -10)."""
-    corners = np.array([[-30.0, -15.0], [30.0, -15.0], [30.0, 15.0], [-30.0, 15.0], [-30.0, -15.0]])
-    seg = np.diff(corners, axis=0)
-    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
-    s = np.arange(0.0, laps * cum[-1], speed * dt) % cum[-1]
-    k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, 3)
-    frac = (s - cum[k]) / (cum[k + 1] - cum[k])
-    ne = corners[k] + frac[:, None] * seg[k]
-    return np.column_stack([ne, np.full(len(s), -10.0)])
-
-
-def ekf_mean_error(
-    truth: np.ndarray, landmarks: np.ndarray, rng: np.random.Generator, dt: float,
-    sigma_v: float, sigma_m: float, bearing_every: int,
-) -> float:  # fmt: skip
-    """Mean |x_hat - x| of a position EKF: velocity dead reckoning + bearings to landmarks."""
-    v_true = np.diff(truth, axis=0) / dt
-    v_meas = v_true + sigma_v * rng.normal(size=v_true.shape)
-    x_hat = truth[0] + rng.normal(size=3)
-    p = np.eye(3)
-    q = (sigma_v * dt) ** 2 * np.eye(3)
-    r = sigma_m**2 * np.eye(3 * len(landmarks))
-    errors = []
-    for k in range(1, len(truth)):
-        x_hat = x_hat + v_meas[k - 1] * dt
-        p = p + q
-        if k % bearing_every == 0:
-            d_true = landmarks - truth[k]
-            y = d_true / np.linalg.norm(d_true, axis=1)[:, None]
-            y = (y + sigma_m * rng.normal(size=y.shape)).ravel()
-            d = landmarks - x_hat
-            dist = np.linalg.norm(d, axis=1)
-            h = d / dist[:, None]
-            jac = -(np.eye(3) - h[:, :, None] * h[:, None, :]) / dist[:, None, None]
-            jac = jac.reshape(-1, 3)
-            gain = np.linalg.solve(jac @ p @ jac.T + r, jac @ p).T
-            x_hat = x_hat + gain @ (y - h.ravel())
-            p = (np.eye(3) - gain @ jac) @ p
-        errors.append(np.linalg.norm(x_hat - truth[k]))
-    return float(np.mean(errors))
-
-
-def ekf_validation(runs: int) -> dict[str, float]:
-    dt, m = 0.1, 3
-    truth = rectangle_path(speed=4.0, dt=dt, laps=2)
-    setpoints = truth[:: len(truth) // 32][:16]
-    problem = make_problem(setpoints, m, SIGMA_M, PRIOR_COV, R_MIN_M, R_MAX_M)
-    placed = solve_ipopt(problem, seed=0, starts=5)
-    placed_err, random_err = [], []
-    for run in range(runs):
-        random_lm = random_feasible_landmarks(problem, np.random.default_rng([7, run]))
-        for landmarks, out in ((placed.landmarks_ned, placed_err), (random_lm, random_err)):
-            rng = np.random.default_rng([11, run])  # same noise for both placements
-            out.append(ekf_mean_error(truth, landmarks, rng, dt, 1.0, SIGMA_M, 5))
-    placed_mean, random_mean = float(np.mean(placed_err)), float(np.mean(random_err))
-    print(f"EKF validation ({runs} runs, {len(truth)} steps, M={m}):")
-    print(f"  placed landmarks (ipopt objective {placed.objective:.3g} m^2): mean error "
-          f"{placed_mean:.3f} m")  # fmt: skip
-    print(f"  random landmarks: mean error {random_mean:.3f} m")
-    print(f"  reduction {100.0 * (1.0 - placed_mean / random_mean):.1f} % (target >= 50 %)")
-    return {"placed_m": placed_mean, "random_m": random_mean}
+def print_table_iii(time_cells: dict[int, Cell], ms: tuple[int, ...]) -> dict[str, object]:
+    """Median wall and CPU seconds per method and M, with ratios to the warm IPOPT solve."""
+    print("\nTable III: N=10, median seconds wall / CPU (paper in brackets), CPU ratio to"
+          " ipopt warm")  # fmt: skip
+    table: dict[str, object] = {}
+    names = [k for k in time_cells[ms[0]].seconds]
+    for name in names:
+        cols = []
+        for j, m in enumerate(ms):
+            wall = statistics.median(time_cells[m].seconds[name])
+            cpu = statistics.median(time_cells[m].cpu[name])
+            base = statistics.median(time_cells[m].cpu["ipopt warm"])
+            paper = PAPER_TABLE_III.get(name.replace(" cold", "").replace(" warm", ""))
+            ref = (
+                f" [{paper[j]:.3f}]" if paper and "starts" not in name and "AD" not in name else ""
+            )
+            cols.append(f"M={m}: {wall:6.3f}/{cpu:6.3f}{ref} x{cpu / base:5.2f}")
+            table.setdefault(name, {})[m] = {"wall": wall, "cpu": cpu}  # type: ignore[union-attr]
+        print(f"{name:>23}  " + "   ".join(cols))
+    print(f"load average during the run (1, 5, 15 min): {os.getloadavg()}")
+    return table
 
 
 def mean(values: list[float]) -> float:
@@ -197,16 +167,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--isres-evals", type=int, default=None, help="evaluations per variable")
     ap.add_argument("--json", type=Path, default=None, help="write all numbers to this file")
     ap.add_argument("--ekf", action="store_true", help="only the EKF validation along a path")
+    ap.add_argument("--table3", action="store_true", help="only the timings of Table III")
     args = ap.parse_args(argv)
     if args.ekf:
-        ekf_validation(args.runs or 20)
+        from bench_planner_ekf import ekf_validation
+
+        ekf_validation(args.runs or 20, [0.1, 0.02], None)
         return 0
+    if args.table3:
+        return table_iii_only(args.instances or 6, args.runs or 3)
     instances = args.instances or (2 if args.quick else 6)
     runs = args.runs or (1 if args.quick else 2)
     evals = args.isres_evals or (300 if args.quick else 1000)
     ns, ms = (5, 10, 20), (2, 5, 10)
     t0 = time.perf_counter()
     placer = IpoptPlacer()
+    ad_placer = IpoptPlacer(structured_hessian=False)
     print(
         f"protocol: {instances} instances x {runs} runs per cell, ISRES {evals} evals/variable "
         f"(population 20), R_min {R_MIN_M} m, R_max {R_MAX_M} m"
@@ -219,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     time_cells: dict[int, Cell] = {}
     for n in ns:
         for m in ms:
-            cell = run_cell(n, m, instances, runs, evals, placer)
+            cell = run_cell(n, m, instances, runs, evals, placer, ad_placer=ad_placer)
             if n == 10:
                 time_cells[m] = cell
             ours, greedy = PAPER_TABLE_I[(n, m)]
@@ -257,19 +233,7 @@ def main(argv: list[str] | None = None) -> int:
             "objective": cell.objective,
         }
 
-    print("\nTable III: N=10, median wall time [s] (paper in brackets), ratio to ipopt cold")
-    table_iii: dict[str, object] = {}
-    names = ("ipopt cold", "ipopt warm", "ipopt 5 starts warm", "greedy", "isres")
-    for name in names:
-        cols = []
-        for j, m in enumerate(ms):
-            med = statistics.median(time_cells[m].seconds[name])
-            base = statistics.median(time_cells[m].seconds["ipopt cold"])
-            paper = PAPER_TABLE_III.get(name.replace(" cold", ""))
-            ref = f" [{paper[j]:.3f}]" if paper else ""
-            cols.append(f"M={m}: {med:7.3f}{ref} x{med / base:5.2f}")
-            table_iii.setdefault(name, {})[m] = med  # type: ignore[union-attr]
-        print(f"{name:>20}  " + "   ".join(cols))
+    table_iii = print_table_iii(time_cells, ms)
     total = time.perf_counter() - t0
     print(f"\ntotal {total:.0f} s")
     if args.json is not None:
@@ -282,6 +246,18 @@ def main(argv: list[str] | None = None) -> int:
             "seconds": total,
         }
         args.json.write_text(json.dumps(record, indent=1))
+    return 0
+
+
+def table_iii_only(instances: int, runs: int) -> int:
+    """Timings of Table III (greedy, IPOPT cold/warm/5 starts, AD-Hessian baseline, ISRES on
+    the first run of each instance)."""
+    placer, ad_placer = IpoptPlacer(), IpoptPlacer(structured_hessian=False)
+    ms = (2, 5, 10)
+    print(f"Table III timings: N=10, {instances} instances x {runs} runs (ISRES: 1 run each)")
+    cells = {m: run_cell(10, m, instances, runs, 1000, placer, ad_placer=ad_placer, isres_runs=1)
+             for m in ms}  # fmt: skip
+    print_table_iii(cells, ms)
     return 0
 
 

@@ -2,8 +2,10 @@
 others, localizing by bearings to them, are as certain as possible at their setpoints.
 
 Modules: ``problem`` (data, validation, numpy evaluation), ``symbolic`` (casadi expressions),
-``ipopt`` (Problem 3, the main method), ``greedy`` and ``isres`` (baselines), ``setpoints``
-(TOML files), ``plot`` (figure). Solvers import casadi / nlopt / matplotlib lazily.
+``hessian`` (the structured exact Hessian of eq. 11), ``ipopt`` (Problem 3, the main method),
+``greedy`` and ``isres`` (baselines), ``setpoints`` (TOML files), ``plot`` (figure),
+``validation`` (EKF along a mission: planned vs random landmarks). Solvers import casadi /
+nlopt / matplotlib lazily.
 """
 
 from __future__ import annotations
