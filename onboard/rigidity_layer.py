@@ -5,11 +5,13 @@ rigidity-maintenance, collision and tracking actions of paper 003, for one vehic
 ``rigidity-tracking`` or ``rigidity_maintenance`` is on. Per step the layer
 
 1. takes the current camera frame (the bearings in ``own.bearings``: the graph switches with
-   the field of view) and re-reads the yaw of the body frame in the estimated frame;
-2. runs angle localization (eq. 10-11, :mod:`onboard.estimation.angle_localization`) with its
-   own angles, the gradient blocks its neighbours sent, and the measured ranges (or SfM
+   the field of view), re-reads the yaw of the body frame in the estimated frame, and builds
+   its star of angles once (:mod:`onboard.estimation.star_rigidity`) over everyone it sees or
+   could see;
+2. runs angle localization (eq. 10-11, :mod:`onboard.estimation.angle_localization`) with the
+   angles it measures, the gradient blocks its neighbours sent, and the measured ranges (or SfM
    distances) for scale;
-3. runs one round of the distributed power iteration
+3. runs one message round of the distributed subspace iteration
    (:mod:`onboard.estimation.distributed_eigen`) on the weighted angle rigidity matrix built from
    the estimates (candidates: every communication neighbour it could see; the sensing weights
    drop those out of view), or, with ``rigidity_eigen = "centralized"``, computes the eigenpair
@@ -19,7 +21,8 @@ rigidity-maintenance, collision and tracking actions of paper 003, for one vehic
    from :mod:`onboard.control.rigidity`.
 
 It publishes :class:`messages.rigidity.AngleLocalizationShare` and
-:class:`messages.rigidity.RigidityEigenShare` every step.
+:class:`messages.rigidity.RigidityEigenShare` every step; the subspace iteration's extra
+columns ride in the latter's ``x`` (:class:`EigenWire`).
 """
 
 from __future__ import annotations
@@ -33,17 +36,14 @@ from messages.agent import OwnMeasurements
 from messages.codec import Payload
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 from onboard.control import rigidity as ctl
-from onboard.estimation.angle_localization import (
-    AngleLocalizer,
-    distance_gradient,
-    local_angle_gradient,
-    local_vertical_gradient,
-)
+from onboard.estimation import star_rigidity as st
+from onboard.estimation.angle_localization import AngleLocalizer, distance_gradient
 from onboard.estimation.distributed_eigen import (
     DistributedEigenEstimator,
     EigenGains,
-    local_gram_and_form_gradient,
-    trivial_motion_block,
+    Neighbours,
+    n_consensus,
+    trivial_motion_blocks,
 )
 from onboard.geometry import FloatArray
 from onboard.graph import complete_graph
@@ -60,6 +60,85 @@ FRAME_MAX_AGE_S = 0.2
 
 def _vec(a: FloatArray) -> Vec3:
     return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def _vecs(a: FloatArray) -> list[Vec3]:
+    return [(r[0], r[1], r[2]) for r in a.tolist()]
+
+
+class EigenWire:
+    """Where the subspace iteration's extra data rides in :class:`RigidityEigenShare`.
+
+    ``v`` and ``mv`` carry column 0 of ``V_i`` and of the per-target blocks of ``M_w V``; ``z``
+    is the PI integral state; ``x`` is ``[consensus x (n_c) | degree | sbar | V_i columns
+    1.. (3 (k - 1)) | per target: M_w V columns 1.. (3 (k - 1)), weighted-degree part (1)]``
+    (:mod:`onboard.estimation.distributed_eigen`). A payload whose lengths do not match ``k``
+    is malformed."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self.n_c = n_consensus(k)
+        self.per_target = 3 * (k - 1) + 1
+
+    def length(self, n_targets: int) -> int:
+        return self.n_c + 2 + 3 * (self.k - 1) + n_targets * self.per_target
+
+    def pack(
+        self,
+        x: FloatArray,
+        degree: int,
+        s_bar: float,
+        v: FloatArray,
+        mv: FloatArray,
+        s_parts: FloatArray,
+    ) -> list[float]:
+        """``v`` ``(3, k)``, ``mv`` ``(M, 3, k)`` and ``s_parts`` ``(M,)`` for the ``M`` targets."""
+        tail = np.concatenate(
+            [mv[:, :, 1:].reshape(len(mv), 3 * (self.k - 1)), s_parts[:, None]], axis=1
+        )
+        return [
+            *x.tolist(),
+            float(degree),
+            s_bar,
+            *v[:, 1:].ravel().tolist(),
+            *tail.ravel().tolist(),
+        ]
+
+    def unpack(self, msgs: list[RigidityEigenShare]) -> tuple[Neighbours, FloatArray]:
+        """The senders' consensus states and their ``V_j`` ``(K, 3, k)``."""
+        n_c, k = self.n_c, self.k
+        if not msgs:
+            return Neighbours.none(n_c), np.zeros((0, 3, k))
+        head = n_c + 2 + 3 * (k - 1)
+        rows = np.array([[*m.x[:head], *m.v] for m in msgs])
+        v = np.concatenate(
+            (rows[:, head:, None], rows[:, n_c + 2 : head].reshape(len(msgs), 3, k - 1)), axis=2
+        )
+        nb = Neighbours(
+            rows[:, :n_c], np.array([m.z for m in msgs]), rows[:, n_c], rows[:, n_c + 1]
+        )
+        return nb, v
+
+    def addressed_to(
+        self, msgs: list[RigidityEigenShare], me: int
+    ) -> tuple[FloatArray, float, FloatArray]:
+        """Sums of what the senders addressed to ``me``: blocks of ``M_w V`` ``(3, k)``,
+        weighted-degree parts and form-gradient blocks ``(3,)``."""
+        head = self.n_c + 2 + 3 * (self.k - 1)
+        per = self.per_target
+        parts = []
+        for m in msgs:
+            if me in m.targets:
+                t = m.targets.index(me)
+                start = head + t * per
+                parts.append([*m.form_grad_ned[t], *m.mv[t], *m.x[start : start + per]])
+        if not parts:
+            return np.zeros((3, self.k)), 0.0, np.zeros(3)
+        total = np.array(parts).sum(axis=0)
+        mv = np.concatenate(
+            (total[3:6, None], total[6 : 6 + 3 * (self.k - 1)].reshape(3, -1)), axis=1
+        )
+        return mv, float(total[-1]), total[:3]
 
 
 class RigidityLayer:
@@ -84,16 +163,10 @@ class RigidityLayer:
             k_track_range=cfg.k_track_range,
             k_track_camera=cfg.k_track_camera,
         )
-        eg = EigenGains(
-            k_m=cfg.eigen_k_m,
-            k_t=cfg.eigen_k_t,
-            k_n=cfg.eigen_k_n,
-            gamma=cfg.eigen_gamma,
-            k_p=cfg.eigen_k_p,
-            k_i=cfg.eigen_k_i,
-            momentum=cfg.eigen_momentum,
-        )
-        self.eigen = DistributedEigenEstimator.start(cfg.seed, self.id, eg)
+        # per-round gains: the same for any message rate and team size (cfg.eigen_* are the
+        # rates of the earlier continuous-time single-vector scheme and are not used)
+        self.eigen = DistributedEigenEstimator.start(cfg.seed, self.id, EigenGains())
+        self.wire = EigenWire(self.eigen.gains.columns)
         self._loc_in: dict[int, AngleLocalizationShare] = {}
         self._eig_in: dict[int, RigidityEigenShare] = {}
         self.lambda_hat = 0.0
@@ -115,24 +188,18 @@ class RigidityLayer:
                 return False
             self._loc_in[j] = msg
         elif isinstance(msg, RigidityEigenShare):
-            if not (len(msg.targets) == len(msg.mv) == len(msg.form_grad_ned)):
+            n = len(msg.targets)
+            if not (
+                len(msg.mv) == len(msg.form_grad_ned) == n
+                and len(msg.x) == self.wire.length(n)
+                and len(msg.z) == self.wire.n_c
+            ):
                 return False
             self._eig_in[j] = msg
         return True
 
     def _fresh(self, stamp_s: float, t_s: float) -> bool:
         return t_s - stamp_s <= self.cfg.peer_timeout_s
-
-    def _received_blocks(self, inbox: dict, field: str, t_s: float) -> FloatArray:
-        """Sum of the blocks neighbours addressed to this agent in ``field``."""
-        total = np.zeros(3)
-        for msg in inbox.values():
-            if not self._fresh(msg.stamp_s, t_s):
-                continue
-            for target, block in zip(msg.targets, getattr(msg, field), strict=True):
-                if target == self.id:
-                    total += block
-        return total
 
     # ------------------------------------------------------------------- step
     def step(
@@ -156,17 +223,33 @@ class RigidityLayer:
         frame = self._current_frame(own, t_s, p_est)
         self.seen = [j for j, _ in frame]
         beta = np.array([b for _, b in frame]).reshape(-1, 3)
-        p_seen = np.array([p_est[j] for j in self.seen]).reshape(-1, 3)
+        fresh = {j: m for j, m in self._eig_in.items() if self._fresh(m.stamp_s, t_s)}
+        cand = [j for j in self.candidates if j in p_est and j in fresh]
 
-        # 1-2. yaw in the estimated frame, angle localization (eq. 10-11)
+        # 1. yaw in the estimated frame; one star over everyone seen or a candidate
         loc = self.loc
         if self.seen:
-            loc.update_yaw(yaw_odometry_rad, beta, p_seen)
+            loc.update_yaw(yaw_odometry_rad, beta, np.array([p_est[j] for j in self.seen]))
         self.yaw_hat = loc.yaw_hat(yaw_odometry_rad)
         p_own = loc.p_hat_ned.copy()
-        _, g_loc = local_angle_gradient(p_own, p_seen, beta, cfg.k_angle_loc)
-        g_loc += local_vertical_gradient(p_own, p_seen, beta, cfg.k_vertical_loc)[1]
-        grad = g_loc[0] + self._received_blocks(self._loc_in, "grad_ned", t_s)
+        ids = sorted(set(self.seen) | set(cand))
+        whole = st.star(
+            p_own, self.yaw_hat, np.array([p_est[j] for j in ids]).reshape(-1, 3), self.model
+        )
+        pos = {j: m for m, j in enumerate(ids)}
+
+        # 2. angle localization (eq. 10-11)
+        s_seen = (
+            whole
+            if ids == self.seen
+            else st.restrict(whole, np.array([pos[j] for j in self.seen], dtype=np.int64))
+        )
+        g_loc = st.angle_gradient(s_seen, beta, cfg.k_angle_loc)[1]
+        g_loc += st.vertical_gradient(s_seen, beta, cfg.k_vertical_loc)[1]
+        grad = g_loc[0].copy()
+        for j, msg in self._loc_in.items():
+            if j in p_est and self.id in msg.targets:
+                grad += msg.grad_ned[msg.targets.index(self.id)]
         for j, d in self._distances(own, t_s, sfm_distances).items():
             if j in p_est:
                 grad += distance_gradient(p_own, p_est[j], d, cfg.k_distance_loc)[1]
@@ -179,13 +262,18 @@ class RigidityLayer:
                 yaw_hat_rad=self.yaw_hat,
                 yaw_known=loc.yaw_known,
                 targets=list(self.seen),
-                grad_ned=[_vec(g) for g in g_loc[1:]],
+                grad_ned=_vecs(g_loc[1:]),
             )
         )
         loc.step(dt, v_body, yaw_odometry_rad, grad)
 
         # 3. eigenvalue and its gradient
-        self._eigen_step(t_s, dt, p_own, p_est, seq, outbox)
+        s_cand = (
+            whole
+            if ids == cand
+            else st.restrict(whole, np.array([pos[j] for j in cand], dtype=np.int64))
+        )
+        self._eigen_step(t_s, p_own, p_est, fresh, cand, s_cand, seq, outbox)
 
         # 4. actions
         self._actions(own, t_s, p_own, p_est)
@@ -193,16 +281,17 @@ class RigidityLayer:
     def _current_frame(
         self, own: OwnMeasurements, t_s: float, p_est: dict[int, FloatArray]
     ) -> list[tuple[int, FloatArray]]:
-        frame = []
-        for b in own.bearings:
-            if b.target not in p_est or t_s - b.stamp_s > FRAME_MAX_AGE_S:
-                continue
-            beta = np.asarray(b.beta_body, dtype=float)
-            if beta.shape != (3,) or not np.all(np.isfinite(beta)):
-                continue
-            if abs(float(beta @ beta) - 1.0) > 1e-3:
-                continue
-            frame.append((b.target, beta))
+        kept = [
+            (b.target, b.beta_body)
+            for b in own.bearings
+            if b.target in p_est and t_s - b.stamp_s <= FRAME_MAX_AGE_S and len(b.beta_body) == 3
+        ]
+        if not kept:
+            return []
+        beta = np.array([bb for _, bb in kept], dtype=float)
+        norm2 = np.einsum("md,md->m", beta, beta)
+        ok = np.isfinite(norm2) & (np.abs(norm2 - 1.0) <= 1e-3)  # finite unit vectors only
+        frame = [(j, beta[m]) for m, (j, _) in enumerate(kept) if ok[m]]
         return sorted(frame, key=lambda x: x[0])
 
     def _distances(
@@ -219,48 +308,56 @@ class RigidityLayer:
     def _eigen_step(
         self,
         t_s: float,
-        dt: float,
         p_own: FloatArray,
         p_est: dict[int, FloatArray],
+        fresh: dict[int, RigidityEigenShare],
+        cand: list[int],
+        s_cand: st.Star,
         seq: int,
         outbox: list[Payload],
     ) -> None:
         cfg = self.cfg
         eig = self.eigen
-        fresh = {j: m for j, m in self._eig_in.items() if self._fresh(m.stamp_s, t_s)}
-        cand = [j for j in self.candidates if j in p_est and j in fresh]
-        p_cand = np.array([p_est[j] for j in cand]).reshape(-1, 3)
-        v_loc = np.vstack([eig.v, *[np.asarray(fresh[j].v) for j in cand]])
-        gram, _, g_form, g_form_yaw = local_gram_and_form_gradient(
-            p_own, self.yaw_hat, p_cand, v_loc, self.model
-        )
-        mv = (gram @ v_loc.ravel()).reshape(-1, 3)
-        mv_i = mv[0] + self._received_blocks(fresh, "mv", t_s)
-        nbrs = [(m.x, m.z) for m in fresh.values()]
-        x = eig.step(dt, trivial_motion_block(p_own), mv_i, nbrs)
+        wire = self.wire
+        msgs = list(fresh.values())
+        nbrs, v_all = wire.unpack(msgs)
+        row = {j: r for r, j in enumerate(fresh)}
+        v_cand = v_all[[row[j] for j in cand]]
+        mv = st.weighted_matvec(s_cand, eig.v, v_cand)
+        s_parts = st.weighted_degree(s_cand)
+        mv_in, s_in, form_in = wire.addressed_to(msgs, self.id)
+        mv_i = mv[0] + mv_in
+        s_i = float(s_parts[0]) + s_in
+        # the Ritz vector's blocks with this agent's view of the Ritz problem (previous round)
+        t_blocks = trivial_motion_blocks(np.vstack([p_own, *[p_est[j] for j in cand]]))
+        y = eig.ritz_blocks(np.concatenate([eig.v[None], v_cand]), t_blocks)
+        if y is None:
+            g_form, g_form_yaw = np.zeros((len(cand) + 1, 3)), 0.0
+        else:
+            _, _, g_form, g_form_yaw = st.form_gradient(s_cand, y[0], y[1:])
+        eig.step(t_blocks[0], mv_i, s_i, nbrs)
+        x, z = eig.share()
         outbox.append(
             RigidityEigenShare(
                 sender=self.id,
                 seq=seq,
                 stamp_s=t_s,
-                v=_vec(v_loc[0]),
-                x=x,
-                z=list(eig.z),
+                v=_vec(eig.v[:, 0]),
+                x=wire.pack(x, eig.degree, eig.s_bar, eig.v, mv[1:], s_parts[1:]),
+                z=z.tolist(),
                 lambda_hat=eig.lambda_hat,
                 targets=cand,
-                mv=[_vec(m) for m in mv[1:]],
-                form_grad_ned=[_vec(g) for g in g_form[1:]],
+                mv=_vecs(mv[1:, :, 0]),
+                form_grad_ned=_vecs(g_form[1:]),
             )
         )
         if cfg.rigidity_eigen == "centralized":
             self._centralized(p_own, t_s)
             return
-        scale = cfg.n_agents * max(eig.norm2_avg, 1e-9)
+        # |y|^2 = N (Ritz normalization): d lambda/dx = d(y^T M_w y)/dx / N (eq. 21)
         self.lambda_hat = eig.lambda_hat
-        self.grad_lambda_p = (g_form[0] + self._received_blocks(fresh, "form_grad_ned", t_s)) / (
-            scale
-        )
-        self.grad_lambda_yaw = g_form_yaw / scale
+        self.grad_lambda_p = (g_form[0] + form_in) / cfg.n_agents
+        self.grad_lambda_yaw = g_form_yaw / cfg.n_agents
 
     def _centralized(self, p_own: FloatArray, t_s: float) -> None:
         """Eigenpair from every agent's shared estimate (all-to-all communication needed)."""
@@ -291,7 +388,7 @@ class RigidityLayer:
             self.u_rigidity, self.w_rigidity = u, w
             return
         if self.loc.yaw_known:
-            if cfg.rigidity_maintenance:
+            if cfg.rigidity_maintenance and self.lambda_hat < g.lambda_safe:  # else no slope
                 du, dw = ctl.rigidity_control_body(
                     self.lambda_hat, self.grad_lambda_p, self.grad_lambda_yaw, self.yaw_hat, g
                 )

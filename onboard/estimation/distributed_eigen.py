@@ -1,65 +1,78 @@
-"""Distributed estimation of the weighted angle-rigidity eigenvalue and eigenvector.
+"""Distributed estimation of the weighted angle-rigidity eigenvalue and eigenvector, by a
+subspace power iteration with Rayleigh-Ritz, counted in message rounds.
 
 No agent sees the whole framework, yet the rigidity controller of paper 003 (eq. 21-23) needs
 the rigidity eigenvalue ``lambda`` (the 8th smallest of ``M_w = R_A^T W R_A`` in 3-D, eq. 16)
-and each agent's 3-vector ``v_i`` of its unit eigenvector. This module estimates both with
-neighbour messages only, following the decentralized power iteration of Yang et al. 2010
-("Decentralized estimation and control of graph connectivity", for the Laplacian) as extended
-to rigidity matrices by Zelazo et al. 2015 ("Decentralized rigidity maintenance control with
-range measurements") and Schiano et al. 2017 (bearing rigidity):
+and each agent's 3-vector of its eigenvector. The decentralized power iteration of Yang et al.
+2010 (Laplacian), extended to rigidity matrices by Zelazo et al. 2015 (distances) and Schiano
+et al. 2017 (bearings), tracks *one* vector. When the two smallest non-trivial eigenvalues
+come close and then cross (a robot turning away takes a different mode of the framework down)
+one vector needs many rounds to turn into the new eigenvector, and its Rayleigh quotient stays
+at the old, higher value meanwhile: the controller misses the drop. Here every agent holds a
+block ``V_i`` ``(3, k)`` of ``k`` vectors (default 3) and the network runs, per message round,
 
-    ``v' = -k_m M_w v - k_t P_T v - k_n (|v|^2 / N - 1) v``,
+    ``V+ = V - alpha M_w V - k_t P_T V - (k_n / 2) V (Gbar - I)``,
 
-where ``P_T`` is the orthogonal projector on the known trivial motions (eq. 4: 3 translations,
-3 rotations, 1 scaling). On the complement of the trivial space the slowest mode of
-``-k_m M_w`` is the rigidity eigenvector; the ``k_t`` term deflates the 7 trivial modes (their
-eigenvalue 0 would otherwise win) and the ``k_n`` term keeps ``v`` from vanishing. At the
-equilibrium ``v`` is a rigidity eigenvector with ``|v|^2 / N = 1 - k_m lambda / k_n`` (needs
-``k_n > k_m lambda`` and ``k_t > k_m lambda``).
+* ``alpha = step / sbar``, ``sbar`` the network maximum of the weighted degrees
+  (:func:`onboard.estimation.star_rigidity.weighted_degree`), an upper bound on
+  ``lambda_max(M_w)``: ``I - alpha M_w`` has its eigenvalues in ``[1 - step, 1]`` whatever the
+  size of the team, so the smallest non-trivial modes win and the step scales with the graph;
+* ``P_T`` the orthogonal projector on the 7 trivial motions (eq. 4: 3 translations,
+  3 rotations, 1 scaling; their eigenvalue 0 would otherwise win), ``k_t`` per round;
+* ``Gbar = V^T V / N``: the last term keeps the ``k`` columns near-orthonormal (they would
+  otherwise all turn into the dominant one), ``k_n`` per round.
+
+The span of ``V`` converges to the ``k`` smallest non-trivial modes at the rate
+``alpha (lambda_{8+k} - lambda_8)`` per round (the gap to the first mode *not* tracked, not to
+the next one), and the estimate is the smallest **Ritz value** of that span: with
+``H = V^T M_w V / N`` and ``G' = V^T (I - P_T) V / N`` (trivial parts removed, so they cannot
+fake a small eigenvalue), ``lambda_hat = min theta``, ``H c = theta G' c``. A mode crossing
+inside the span moves the Ritz value at once. Its Ritz vector ``y = (I - P_T) V c`` (scaled so
+``|y|^2 = N``) gives the gradient ``d lambda/dx = y^T (dM_w/dx) y / N`` (paper 003 eq. 21).
 
 **What is local.** ``M_w = sum_a W_a r_a r_a^T`` and an angle ``a = (i, j, k)`` involves only
-``i`` and the two neighbours it sees, so agent ``i`` computes ``M_i v`` over its own angles
-(:func:`local_weighted_gram`) from its neighbours' ``v_j``, keeps its block and sends the blocks
-of ``j, k`` to them: ``(M_w v)_i`` = own block + received blocks. The trivial basis of agent
-``i`` is a ``3 x 7`` block ``T_i = [I, -hat(p_i), p_i]`` (:func:`trivial_motion_block`), so
-``P_T v = T (T^T T)^{-1} T^T v`` needs the two network sums ``sum_i T_i^T v_i`` (7) and
-``sum_i T_i^T T_i`` (28 distinct entries): both come from PI average consensus (Freeman, Yang,
-Lynch 2006; :mod:`onboard.estimation.consensus`), and their ratio needs no ``N``. So does the
-Rayleigh quotient ``lambda = (v^T M_w v) / (v^T v)`` from the averages of ``v_i . (M_w v)_i`` and
-``|v_i|^2``: it is second-order accurate in the eigenvector error, and a mixture of
-near-degenerate eigenvectors gives a value between them.
+``i`` and the two neighbours it sees: agent ``i`` evaluates its angles' part of ``M_w V``
+(:func:`onboard.estimation.star_rigidity.weighted_matvec`) from its neighbours' ``V_j``, keeps
+its block and sends the blocks of ``j, k`` to them. ``T_i = [I, -hat(p_i), p_i]`` (``3 x 7``)
+is agent ``i``'s rows of the trivial basis. The network averages ``T^T V / N`` (``7 k``),
+``T^T T / N`` (28), ``V^T V / N`` and ``V^T M_w V / N`` (``k (k + 1) / 2`` each) come from PI
+average consensus with Metropolis weights, counted in rounds
+(:mod:`onboard.estimation.round_consensus`); ``sbar`` from a forgetting max consensus. Agent
+``i`` computes its neighbours' Ritz blocks ``y_j = (V_j - T_j T^+ V) c`` itself from their
+``V_j`` and estimated positions.
 
-**Gradient.** With ``v`` fixed, ``d lambda/dx = v^T (dM_w/dx) v / |v|^2`` (paper 003 eq. 21);
-each agent evaluates the derivative of its own angles' part of ``v^T M_w v``
-(:func:`local_gram_and_form_gradient`), keeps the blocks of ``p_i, psi_i`` and
-sends those of ``p_j, p_k``.
-
-Everything here works in the team's estimated frame (angle localization): positions,
-yaws and the trivial motions are the estimated ones.
+Everything here works in the team's estimated frame (angle localization): positions, yaws and
+the trivial motions are the estimated ones.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cache
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import lapack
 
-from onboard.estimation.consensus import PIConsensus
-from onboard.geometry import FloatArray, IntArray, hat
-from onboard.rigidity.angle import (
-    weighted_angle_rigidity_matrix,
-    weighted_gram_and_form_gradient,
+from onboard.estimation.round_consensus import (
+    RoundGains,
+    max_round,
+    metropolis_weights,
+    pi_round,
 )
+from onboard.estimation.star_rigidity import Star, star, weighted_degree, weighted_matvec
+from onboard.geometry import FloatArray, IntArray
 from onboard.rigidity.weights import SensingModel
 
 N_TRIVIAL = 7
-_TRIU = np.triu_indices(N_TRIVIAL)
+_TRIU_T = np.triu_indices(N_TRIVIAL)
+_N_TRIU_T = len(_TRIU_T[0])
 MAX_BLOCK_NORM2 = 1e4
-"""An agent's ``|v_i|^2`` above this (the equilibrium is below 1 on average) means divergence."""
-N_CONSENSUS = N_TRIVIAL + len(_TRIU[0]) + 2
-"""Averaged quantities: ``T_i^T v_i`` (7), ``T_i^T T_i`` (28), ``|v_i|^2``, ``v_i . (M v)_i``."""
+"""An agent's ``|V_i|^2`` above this (the equilibrium is about ``k``) means divergence."""
+RITZ_RCOND = 1e-6
+"""Directions of ``G'`` below this fraction of its largest eigenvalue are left out of the Ritz
+problem (the columns of ``V`` have (nearly) collapsed onto each other or onto trivial motions)."""
 
 
 def trivial_motion_block(p_ned: ArrayLike) -> FloatArray:
@@ -68,159 +81,232 @@ def trivial_motion_block(p_ned: ArrayLike) -> FloatArray:
     Columns: translations along ``e_m``, rotations about ``e_m`` (``e_m x p_i = -hat(p_i) e_m``)
     and scaling (paper 003 eq. 4). The span does not depend on the origin of ``p``.
     """
-    p = np.asarray(p_ned, dtype=float)
-    return np.hstack([np.eye(3), -hat(p), p[:, None]])
+    return trivial_motion_blocks(np.asarray(p_ned, dtype=float).reshape(1, 3))[0]
+
+
+def trivial_motion_blocks(p_ned: ArrayLike) -> FloatArray:
+    """:func:`trivial_motion_block` of every row of ``p_ned`` ``(K, 3)``: ``(K, 3, 7)``."""
+    p = np.asarray(p_ned, dtype=float).reshape(-1, 3)
+    out = np.zeros((len(p), 3, N_TRIVIAL))
+    out[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    x, y, z = p.T
+    # -hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]
+    out[:, 0, 4], out[:, 0, 5] = z, -y
+    out[:, 1, 3], out[:, 1, 5] = -z, x
+    out[:, 2, 3], out[:, 2, 4] = y, -x
+    out[:, :, 6] = p
+    return out
 
 
 def trivial_motion_basis(p_ned: ArrayLike) -> FloatArray:
     """Stacked ``T`` ``(3N, 7)`` for a whole framework (agent-major rows)."""
-    p = np.asarray(p_ned, dtype=float).reshape(-1, 3)
-    return np.vstack([trivial_motion_block(q) for q in p])
+    return trivial_motion_blocks(p_ned).reshape(-1, N_TRIVIAL)
 
 
-def _star(
-    p_own_ned: ArrayLike, yaw_own_rad: float, p_seen_ned: ArrayLike
-) -> tuple[FloatArray, FloatArray, IntArray]:
-    """Positions, yaws and edges of agent ``i``'s star: ``i`` is vertex 0, candidate ``m`` is
-    vertex ``m + 1``; edges ``(0, m + 1)``. Only vertex 0's yaw matters."""
-    p_loc = np.vstack([np.asarray(p_own_ned, dtype=float), np.asarray(p_seen_ned, dtype=float)])
-    m = len(p_loc) - 1
-    edges = np.stack([np.zeros(m, dtype=np.int64), np.arange(1, m + 1)], axis=1)
-    yaw = np.zeros(m + 1)
-    yaw[0] = yaw_own_rad
-    return p_loc, yaw, edges
+def n_consensus(k: int) -> int:
+    """Length of the averaged vector for ``k`` columns: ``T^T V`` (``7 k``), ``T^T T`` (28),
+    ``V^T V`` and ``V^T M V`` (``k (k + 1) / 2`` each)."""
+    return N_TRIVIAL * k + _N_TRIU_T + k * (k + 1)
 
 
-def local_weighted_gram(
-    p_own_ned: ArrayLike, yaw_own_rad: float, p_seen_ned: ArrayLike, model: SensingModel
-) -> FloatArray:
-    """``sum_{a at i} W_a r_a r_a^T`` over the angles agent ``i`` forms with ``M`` candidates.
+@cache
+def _triu(k: int) -> tuple[IntArray, IntArray, IntArray]:
+    """Upper-triangle rows, columns and the flat indices of the lower triangle's mirror."""
+    r, c = np.triu_indices(k)
+    return r, c, c * k + r
 
-    Indices: agent ``i`` is block 0, candidate ``m`` is block ``m + 1``; shape
-    ``(3 (M + 1), 3 (M + 1))``. Candidates outside range or view get weight 0 (eq. 16-18).
+
+def _sym(triu: FloatArray, k: int) -> FloatArray:
+    r, c, mirror = _triu(k)
+    out = np.zeros(k * k)
+    out[r * k + c] = triu
+    out[mirror] = triu
+    return out.reshape(k, k)
+
+
+def consensus_input(t_i: FloatArray, v_i: FloatArray, mv_i: FloatArray) -> FloatArray:
+    """Agent ``i``'s terms of the averaged quantities (:func:`n_consensus`), from ``T_i``
+    ``(3, 7)``, ``V_i`` and ``(M_w V)_i`` ``(3, k)``."""
+    iu = _triu(v_i.shape[1])[:2]
+    vmv = v_i.T @ mv_i
+    return np.concatenate(
+        [
+            (t_i.T @ v_i).ravel(),
+            (t_i.T @ t_i)[_TRIU_T],
+            (v_i.T @ v_i)[iu],
+            (0.5 * (vmv + vmv.T))[iu],
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class Averages:
+    """The network averages one agent's consensus holds, unpacked (module docstring)."""
+
+    tv: FloatArray  # T^T V / N (7, k)
+    tt: FloatArray  # T^T T / N (7, 7)
+    vv: FloatArray  # V^T V / N (k, k)
+    vmv: FloatArray  # V^T M V / N (k, k)
+
+    @classmethod
+    def unpack(cls, x: FloatArray, k: int) -> Averages:
+        a = N_TRIVIAL * k
+        b = a + _N_TRIU_T
+        c = b + k * (k + 1) // 2
+        return cls(
+            x[:a].reshape(N_TRIVIAL, k), _sym(x[a:b], N_TRIVIAL), _sym(x[b:c], k), _sym(x[c:], k)
+        )
+
+
+def ritz(avg: Averages) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Rayleigh-Ritz on the span of ``V`` with trivial motions removed.
+
+    Returns ``(theta (r,), c (k, r), coef (7, k))``: Ritz values ascending, coefficient vectors
+    with ``c^T G' c = I`` and the trivial coefficients ``coef = (T^T T)^{-1} T^T V`` (so
+    ``P_T V`` has blocks ``T_i coef``). ``r <= k`` drops ill-conditioned directions.
     """
-    p_loc, yaw, edges = _star(p_own_ned, yaw_own_rad, p_seen_ned)
-    if len(edges) < 2:
-        return np.zeros((3 * len(p_loc), 3 * len(p_loc)))
-    return weighted_angle_rigidity_matrix(p_loc, yaw, edges, model)
-
-
-def local_gram_and_form_gradient(
-    p_own_ned: ArrayLike,
-    yaw_own_rad: float,
-    p_seen_ned: ArrayLike,
-    v_loc: ArrayLike,
-    model: SensingModel,
-) -> tuple[FloatArray, float, FloatArray, float]:
-    """Agent ``i``'s local gram (:func:`local_weighted_gram`), its angles' part of ``v^T M_w v``
-    and that part's gradient (eq. 21 with ``v`` fixed), from one evaluation.
-
-    ``v_loc`` is ``(M + 1, 3)`` (own block first). Returns ``(gram, value, grad_p (M + 1, 3),
-    d/dpsi_i)``: row 0 of ``grad_p`` is ``i``'s own block, row ``m + 1`` goes to candidate ``m``.
-    """
-    p_loc, yaw, edges = _star(p_own_ned, yaw_own_rad, p_seen_ned)
-    if len(edges) < 2:
-        k = len(p_loc)
-        return np.zeros((3 * k, 3 * k)), 0.0, np.zeros((k, 3)), 0.0
-    gram, value, grad_p, grad_yaw = weighted_gram_and_form_gradient(p_loc, yaw, edges, model, v_loc)
-    return gram, value, grad_p, float(grad_yaw[0])
-
-
-def consensus_input(t_i: FloatArray, v_i: FloatArray, mv_i: FloatArray) -> list[float]:
-    """Agent ``i``'s terms of the averaged quantities (see :data:`N_CONSENSUS`)."""
-    gram = t_i.T @ t_i
-    return [*(t_i.T @ v_i).tolist(), *gram[_TRIU].tolist(), float(v_i @ v_i), float(v_i @ mv_i)]
+    k = avg.vv.shape[0]
+    # LAPACK directly: these are 3x3 and 7x7 problems, where numpy's wrappers cost 5x the work
+    _, _, coef, info = lapack.dgesv(avg.tt, avg.tv)
+    if info != 0 or not np.all(np.isfinite(coef)):
+        coef = np.zeros((N_TRIVIAL, k))
+    ev, u, info = lapack.dsyevd(avg.vv - avg.tv.T @ coef)  # G' (symmetric)
+    top = float(ev[-1]) if info == 0 else 0.0
+    if not top > 0.0:
+        return np.zeros(0), np.zeros((k, 0)), coef
+    keep = ev > RITZ_RCOND * top
+    w_half = u[:, keep] / np.sqrt(ev[keep])  # G'^{-1/2} on the kept directions
+    theta, s, info = lapack.dsyevd(w_half.T @ avg.vmv @ w_half)
+    if info != 0:
+        return np.zeros(0), np.zeros((k, 0)), coef
+    return theta, w_half @ s, coef
 
 
 @dataclass(frozen=True)
 class EigenGains:
-    """Gains of the estimator (module docstring). Euler is stable for
-    ``dt (k_m lambda_max + k_t) < 2``; the consensus needs ``dt (gamma + k_p mu_max) < 1``."""
+    """Per-round gains of the estimator (module docstring). Rate-independent: the same values
+    serve a 2 ms and a 10 ms message period, 5 agents and 30."""
 
-    k_m: float = 8.0
-    k_t: float = 10.0
-    k_n: float = 10.0
-    gamma: float = 20.0
-    k_p: float = 8.0
-    k_i: float = 8.0
-    momentum: float = 0.0
-    """Heavy-ball term ``momentum (v_k - v_{k-1})`` added to each Euler step (Polyak): speeds up
-    the slow mode ``k_m (lambda_9 - lambda_8)`` when the two smallest eigenvalues are close.
-    Experimental, off by default: 0.5 sped up a fixed network 5x but destabilized the agent
-    core's closed loop on some starts."""
+    columns: int = 3
+    """``k``, the number of vectors each agent holds (1 is the classic single-vector scheme)."""
+    step: float = 1.5
+    """``alpha sbar``; below 2 since ``sbar >= lambda_max``."""
+    k_t: float = 0.3
+    k_n: float = 0.2
+    forget: float = 0.998
+    """Per-round forgetting of the max consensus on ``sbar`` (0.999^500: 0.6 per second)."""
+    consensus: RoundGains = field(default_factory=RoundGains)
+
+    def __post_init__(self) -> None:
+        if self.columns < 1:
+            raise ValueError("need at least one column")
+        if not (0.0 < self.step < 2.0 and 0.0 < self.k_t <= 1.0 and 0.0 < self.k_n <= 1.0):
+            raise ValueError(f"unstable eigen-estimator gains {self!r}")
+        if not 0.0 < self.forget <= 1.0:
+            raise ValueError("forget must be in (0, 1]")
+
+
+@dataclass(frozen=True)
+class Neighbours:
+    """What agent ``i`` uses of its ``K`` neighbours' last messages: their consensus states
+    ``x, z`` ``(K, n_c)``, their degrees (how many neighbours each heard) and their
+    max-consensus states ``(K,)``."""
+
+    x: FloatArray
+    z: FloatArray
+    degree: FloatArray
+    s_bar: FloatArray
+
+    @classmethod
+    def none(cls, n_c: int) -> Neighbours:
+        return cls(np.zeros((0, n_c)), np.zeros((0, n_c)), np.zeros(0), np.zeros(0))
 
 
 @dataclass(slots=True)
 class DistributedEigenEstimator:
-    """Agent ``i``'s share of the distributed power iteration (module docstring)."""
+    """Agent ``i``'s share of the distributed subspace iteration (module docstring)."""
 
-    v: FloatArray
+    v: FloatArray  # V_i (3, k)
     gains: EigenGains = field(default_factory=EigenGains)
-    consensus: PIConsensus | None = None
+    x: FloatArray | None = None
+    z: FloatArray | None = None
+    s_bar: float = 0.0
     lambda_hat: float = 0.0
-    norm2_avg: float = 1.0
-    """Estimate of ``|v|^2 / N`` (the network average of ``|v_i|^2``)."""
-    v_prev: FloatArray = field(default_factory=lambda: np.zeros(3))
+    theta: FloatArray = field(default_factory=lambda: np.zeros(0))
+    c_min: FloatArray | None = None
+    """Coefficients of the smallest Ritz vector (``y = (V - P_T V) c_min``), ``None`` until known."""
+    coef: FloatArray | None = None
+    degree: int = 0
     restarts: int = 0
     """Times the iteration diverged and was restarted (see :data:`MAX_BLOCK_NORM2`)."""
+    seed: int = 0
 
     @classmethod
     def start(
         cls, seed: int, agent_id: int, gains: EigenGains | None = None
     ) -> DistributedEigenEstimator:
         """A random unit-size start (seeded per agent)."""
+        g = gains or EigenGains()
         rng = np.random.default_rng([seed, agent_id, 31])
-        v = rng.standard_normal(3)
-        return cls(v=v, gains=gains or EigenGains(), v_prev=v.copy())
+        return cls(v=rng.standard_normal((3, g.columns)), gains=g, seed=seed * 7919 + agent_id)
+
+    def share(self) -> tuple[FloatArray, FloatArray]:
+        """The consensus state ``(x, z)`` to send (empty before the first round)."""
+        if self.x is None or self.z is None:
+            return np.zeros(0), np.zeros(0)
+        return self.x, self.z
 
     def step(
         self,
-        dt: float,
         t_i: FloatArray,
         mv_i: FloatArray,
-        neighbours: Sequence[tuple[Sequence[float], Sequence[float]]],
-    ) -> list[float]:
-        """Advance by ``dt`` given ``T_i``, the assembled ``(M_w v)_i`` and the neighbours'
-        consensus states ``(x_j, z_j)``; returns the new consensus state ``x`` to share."""
+        s_own: float,
+        neighbours: Neighbours,
+    ) -> None:
+        """One message round, given ``T_i``, the assembled ``(M_w V)_i`` ``(3, k)``, this
+        agent's weighted degree ``s_i`` (own star plus what neighbours sent) and the
+        neighbours' states."""
         g = self.gains
+        k = g.columns
+        n_c = n_consensus(k)
         phi = consensus_input(t_i, self.v, mv_i)
-        if self.consensus is None:
-            self.consensus = PIConsensus(list(phi), gamma=g.gamma, k_p=g.k_p, k_i=g.k_i)
-        nbrs = [(x, z) for x, z in neighbours if len(x) == len(z) == N_CONSENSUS]
-        x = np.asarray(self.consensus.step(dt, phi, nbrs))
-        if not np.all(np.isfinite(x)):
-            x = np.asarray(phi)
-            self.consensus = None
-        c = x[:N_TRIVIAL]
-        gram = np.zeros((N_TRIVIAL, N_TRIVIAL))
-        gram[_TRIU] = x[N_TRIVIAL : N_CONSENSUS - 2]
-        gram = gram + np.triu(gram, 1).T
-        norm2, quad = x[-2], x[-1]
-        try:
-            coef = np.linalg.solve(gram, c)
-            trivial = t_i @ coef
-        except np.linalg.LinAlgError:
-            trivial = np.zeros(3)
-        if norm2 > 1e-9:
-            self.lambda_hat = float(max(quad / norm2, 0.0))
-            self.norm2_avg = float(norm2)
-        dv = -g.k_m * mv_i - g.k_t * trivial - g.k_n * (norm2 - 1.0) * self.v
-        v_new = self.v + dt * dv + g.momentum * (self.v - self.v_prev)
-        self.v_prev = self.v
-        if not np.all(np.isfinite(v_new)) or float(v_new @ v_new) > MAX_BLOCK_NORM2:
-            # diverging (a step too large for the current spectrum): restart from a fresh
-            # direction rather than feed the controller garbage
-            self.restarts += 1
-            v_new = np.random.default_rng(self.restarts).standard_normal(3)
-            self.v_prev = v_new
-            self.consensus = None
-        self.v = v_new
-        return x.tolist()
+        nb = neighbours
+        if nb.x.shape[1:] != (n_c,) or nb.z.shape != nb.x.shape:
+            nb = Neighbours.none(n_c)
+        self.degree = len(nb.x)
+        if self.x is None or self.z is None or not np.all(np.isfinite(self.x)):
+            self.x, self.z = phi.copy(), np.zeros(n_c)
+        a = metropolis_weights(self.degree, nb.degree)
+        self.x, self.z = pi_round(self.x, self.z, phi, nb.x, nb.z, a, g.consensus)
+        self.s_bar = max_round(s_own, self.s_bar, nb.s_bar, g.forget)
 
-    @property
-    def z(self) -> list[float]:
-        """Integral state of the consensus (shared with neighbours)."""
-        return [] if self.consensus is None else self.consensus.z
+        avg = Averages.unpack(self.x, k)
+        theta, c, coef = ritz(avg)
+        self.coef = coef
+        if len(theta):
+            self.theta = theta
+            self.lambda_hat = float(max(theta[0], 0.0))
+            self.c_min = c[:, 0]
+        trivial = t_i @ coef
+        alpha = g.step / self.s_bar if self.s_bar > 0.0 else 0.0
+        v_new = (
+            self.v - alpha * mv_i - g.k_t * trivial - 0.5 * g.k_n * self.v @ (avg.vv - np.eye(k))
+        )
+        if not np.all(np.isfinite(v_new)) or float(np.sum(v_new * v_new)) > MAX_BLOCK_NORM2:
+            # diverging (e.g. a step too large for a spectrum that jumped): restart from a
+            # fresh direction rather than feed the controller garbage
+            self.restarts += 1
+            v_new = np.random.default_rng([self.seed, self.restarts]).standard_normal((3, k))
+            self.x, self.z = None, None
+        self.v = v_new
+
+    def ritz_blocks(self, v_blocks: FloatArray, t_blocks: FloatArray) -> FloatArray | None:
+        """Blocks ``y_j = (V_j - T_j coef) c_min`` ``(K, 3)`` of the smallest Ritz vector for
+        agents with ``V_j`` ``(K, 3, k)`` and ``T_j`` ``(K, 3, 7)`` (this agent's own view of
+        ``coef`` and ``c_min``); ``None`` before the first Ritz value."""
+        if self.c_min is None or self.coef is None:
+            return None
+        return (v_blocks - t_blocks @ self.coef) @ self.c_min
 
 
 def run_rounds(
@@ -229,16 +315,19 @@ def run_rounds(
     candidates: Sequence[Sequence[int]],
     model: SensingModel,
     n_rounds: int,
-    dt: float = 0.01,
     gains: EigenGains | None = None,
     seed: int = 0,
     v0: ArrayLike | None = None,
+    switch: tuple[int, ArrayLike, ArrayLike] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """Synchronous reference network: every agent runs :class:`DistributedEigenEstimator`,
-    exchanging one message per round with its communication neighbours (``candidates[i]``:
-    whom ``i`` may see; communication runs both ways). Messages computed in round ``k`` are
-    used in round ``k + 1``. Returns ``(lambda_hat (rounds, N), v (N, 3))``. For tests and
-    benchmarks: the agent core runs the same estimator with real payloads."""
+    """Synchronous reference network on a fixed framework: every agent runs
+    :class:`DistributedEigenEstimator`, exchanging one message per round with its
+    communication neighbours (``candidates[i]``: whom ``i`` may see; communication runs both
+    ways). What a message carries in round ``k`` is used in round ``k + 1``. Returns
+    ``(lambda_hat (rounds, N), y (N, 3))``, ``y`` agent 0's view of the smallest Ritz vector
+    (zeros if none). ``switch = (round, p, yaw)`` replaces the framework at that round (a
+    sudden change, to measure tracking). For tests and benchmarks: the agent core runs the
+    same estimator through :mod:`onboard.rigidity_layer`."""
     p = np.asarray(p_ned, dtype=float)
     yaw = np.asarray(yaw_rad, dtype=float)
     n = len(p)
@@ -247,31 +336,51 @@ def run_rounds(
         for j in candidates[i]:
             comm[j].add(i)
     est = [DistributedEigenEstimator.start(seed, i, gains) for i in range(n)]
+    k = est[0].gains.columns
     if v0 is not None:
+        v0a = np.asarray(v0, dtype=float).reshape(n, 3, k)
         for i, e in enumerate(est):
-            e.v = np.asarray(v0, dtype=float).reshape(n, 3)[i].copy()
-            e.v_prev = e.v.copy()
-    grams = [local_weighted_gram(p[i], yaw[i], p[list(candidates[i])], model) for i in range(n)]
-    blocks = [trivial_motion_block(p[i]) for i in range(n)]
+            e.v = v0a[i].copy()
+
+    def frame(p: FloatArray, yaw: FloatArray) -> tuple[list[Star], FloatArray, FloatArray]:
+        stars = [star(p[i], yaw[i], p[list(candidates[i])], model) for i in range(n)]
+        s_in = np.zeros(n)
+        for i, cand in enumerate(candidates):
+            deg = weighted_degree(stars[i])
+            s_in[i] += deg[0]
+            s_in[list(cand)] += deg[1:]
+        return stars, s_in, trivial_motion_blocks(p)
+
+    stars, s_in, t_blocks = frame(p, yaw)
     v_shared = [e.v.copy() for e in est]
     contrib: dict[tuple[int, int], FloatArray] = {}
-    states: list[tuple[list[float], list[float]] | None] = [None] * n
+    states: list[tuple[FloatArray, FloatArray, int, float] | None] = [None] * n
     out = np.zeros((n_rounds, n))
-    for k in range(n_rounds):
+    for r in range(n_rounds):
+        if switch is not None and r == switch[0]:
+            stars, s_in, t_blocks = frame(
+                np.asarray(switch[1], dtype=float), np.asarray(switch[2], dtype=float)
+            )
         new_contrib: dict[tuple[int, int], FloatArray] = {}
-        new_states: list[tuple[list[float], list[float]] | None] = [None] * n
+        new_states: list[tuple[FloatArray, FloatArray, int, float] | None] = [None] * n
         for i, e in enumerate(est):
             cand = list(candidates[i])
-            v_loc = np.concatenate([e.v, *[v_shared[j] for j in cand]])
-            mv = (grams[i] @ v_loc).reshape(-1, 3)
+            mv = weighted_matvec(stars[i], e.v, np.array([v_shared[j] for j in cand]))
             for m, j in enumerate(cand):
                 new_contrib[(i, j)] = mv[m + 1]
-            mv_i = mv[0] + sum((contrib[(j, i)] for j in comm[i] if (j, i) in contrib), np.zeros(3))
-            nbrs = [s for j in comm[i] if (s := states[j]) is not None]
-            x = e.step(dt, blocks[i], mv_i, nbrs)
-            new_states[i] = (x, list(e.z))
-            out[k, i] = e.lambda_hat
+            mv_i = mv[0] + sum((contrib[(j, i)] for j in comm[i] if (j, i) in contrib), 0.0)
+            heard = [s for j in comm[i] if (s := states[j]) is not None]
+            nbrs = (
+                Neighbours(*(np.array(col) for col in zip(*heard, strict=True)))
+                if heard
+                else Neighbours.none(n_consensus(k))
+            )
+            e.step(t_blocks[i], mv_i, float(s_in[i]), nbrs)
+            x, z = e.share()
+            new_states[i] = (x.copy(), z.copy(), e.degree, e.s_bar)
+            out[r, i] = e.lambda_hat
         contrib = new_contrib
         states = new_states
         v_shared = [e.v.copy() for e in est]
-    return out, np.array([e.v for e in est])
+    y = est[0].ritz_blocks(np.array([e.v for e in est]), t_blocks)
+    return out, np.zeros((n, 3)) if y is None else y
