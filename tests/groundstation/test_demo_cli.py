@@ -18,7 +18,7 @@ runner = CliRunner()
         (["--loss", "1.0"], "--loss"),
         (["--flavour", "inav"], "--flavour"),
         (["--bearings", "lidar"], "--bearings"),
-        (["--bearings", "camera", "--speedup", "0.25"], "--speedup"),
+        (["--speedup", "0.1"], "--speedup"),
         (["--speedup", "0"], "--speedup"),
         (["--bearings", "camera", "--render-rate", "0"], "--render-rate"),
     ],
@@ -40,3 +40,14 @@ def test_headless_demo_reports_the_summary_keys():
         assert k in summary
     assert summary["vehicles"] == 3 and summary["headless"] is True
     assert 0.0 <= summary["final_scale_error"] < 1.0
+
+
+def test_default_speed_fits_the_fleet_in_the_machine():
+    from groundstation.demo_cli import CPU_BUDGET, CPU_PER_AGENT, CPU_SIMULATOR, default_speedup
+
+    assert default_speedup(6, 16) == 1.0  # a workstation: real time
+    two_cores = default_speedup(6, 2)
+    assert 0.2 <= two_cores < 1.0
+    assert (CPU_PER_AGENT * 6 + CPU_SIMULATOR) * two_cores <= CPU_BUDGET * 2 + 1e-9
+    assert default_speedup(30, 2) == 0.2  # never slower than the tried floor
+    assert default_speedup(12, 4) <= default_speedup(6, 4)
