@@ -12,13 +12,16 @@ from groundstation.demo_headless import headless_demo
 pytestmark = pytest.mark.e2e
 
 VEHICLES = 6
-SPEEDUP = 0.5
-"""Simulation seconds per wall second. Six daemons and the simulator need about 1.5 of this
-machine's 2 cores in real time; at half speed the run is about timing-independent, which is
-what a correctness test needs (real-time capacity is measured by benchmarks/bench_daemon.py)."""
-MISSION_S = 40.0
+SPEEDUP = 0.6
+"""Simulation seconds per wall second: the demo's default on 2 cores
+(``groundstation.demo_cli.default_speedup``). Six daemons and the simulator need about 2 cores
+in real time; a correctness test must not depend on that margin (real-time capacity is measured
+by benchmarks/bench_daemon.py)."""
+MISSION_S = 34.0
 """Simulation seconds of mission before the demo lands everyone: take-off (about 8 s), the active
-motion until every SfM edge is excited (10-20 s), then the formation settles (about 10 s)."""
+motion until every SfM edge is excited (10-20 s), then the formation settles (quiet-machine run
+with 10% loss: scale within 0.4% at 10 s, formation error 14.7 deg at 14 s, 3.1 at 26 s, 1.7 at
+30 s)."""
 SCALE_TOLERANCE = 0.02
 BEARING_TOLERANCE_DEG = 3.0
 
@@ -38,7 +41,7 @@ def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path, loss):
         assert summary["dropped_messages"] > 0, "the injected loss is counted"
         return
     # within noise of the headless runner flying the same configurations from the same start
-    reference, _ = headless_demo(VEHICLES, seed=0, duration_s=30.0)
+    reference, _ = headless_demo(VEHICLES, seed=0, duration_s=25.0)
     assert reference["final_scale_error"] < SCALE_TOLERANCE
     assert reference["final_bearing_error_deg"] < BEARING_TOLERANCE_DEG
     assert abs(summary["final_scale_error"] - reference["final_scale_error"]) < SCALE_TOLERANCE

@@ -59,18 +59,28 @@ def test_consensus_needs_agreement() -> None:
 
 
 def test_relative_pose_from_two_rendered_views() -> None:
+    """Paper 002 eq. 25-26 on rendered views of a room corner (two walls and the floor).
+
+    A view of a single wall is the essential matrix's degenerate case: it has a twin solution,
+    and in half the noise draws the estimate took it (translation 30 degrees off). The corner
+    view is not degenerate; there the rotation is within 2 degrees in every draw and the
+    translation direction in 0.8-2.8 degrees (1.8 m baseline, scene 7-17 m away): its median
+    over draws is what is held to 2 degrees, and no draw may be grossly off."""
     cam = CameraModel.from_fov(640, 480, 90.0)
     renderer = Renderer(cam, make_background(3, half_size_m=12.0, height_m=10.0, texture_px=1024))
-    p_i, att_i = np.array([0.0, 0.0, -5.0]), (0.0, 0.02, 0.1)
-    p_j, att_j = np.array([1.5, 1.0, -5.4]), (0.03, -0.02, 0.35)
-    img_i = renderer.render(p_i, *att_i, noise_std=2.0, seed=1)
-    img_j = renderer.render(p_j, *att_j, noise_std=2.0, seed=2)
-    est = relative_pose(cam, img_i, cam, img_j)
+    p_i, att_i = np.array([0.0, 0.0, -5.0]), (0.0, -0.5, 0.785)
+    p_j, att_j = np.array([1.5, 1.0, -5.4]), (0.03, -0.54, 1.035)
     r_i, r_j = rot_rpy(*att_i), rot_rpy(*att_j)
     t_true = r_i.T @ (p_j - p_i)
     t_true /= np.linalg.norm(t_true)
-    assert math.degrees(so3_distance(r_i.T @ r_j, est.r_ij_body)) < 2.0
-    assert math.degrees(math.acos(min(1.0, t_true @ est.t_ij_body))) < 2.0
-    assert est.n_inliers >= 50
+    t_errors = []
+    for seed in (1, 3, 5, 7, 9):
+        img_i = renderer.render(p_i, *att_i, noise_std=2.0, seed=seed)
+        img_j = renderer.render(p_j, *att_j, noise_std=2.0, seed=seed + 1)
+        est = relative_pose(cam, img_i, cam, img_j)
+        assert math.degrees(so3_distance(r_i.T @ r_j, est.r_ij_body)) < 2.0
+        assert est.n_inliers >= 50
+        t_errors.append(math.degrees(math.acos(min(1.0, t_true @ est.t_ij_body))))
+    assert np.median(t_errors) < 2.0 and max(t_errors) < 5.0, t_errors
     with pytest.raises(RelativePoseError):
         relative_pose(cam, np.zeros_like(img_i), cam, img_j)
