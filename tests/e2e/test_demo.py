@@ -26,9 +26,14 @@ SCALE_TOLERANCE = 0.02
 BEARING_TOLERANCE_DEG = 3.0
 
 
-@pytest.mark.parametrize("loss", [0.0, 0.1], ids=["no-loss", "10pct-zenoh-loss"])
-def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path, loss):
-    summary = run_demo(VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, loss=loss)
+LOSS = 0.1
+"""Every daemon drops 10% of the peer messages it receives (``zenoh.inject_loss``). The run without
+loss is the easier case (it passed in every trial); one demo takes about 100 s of the suite's
+time, so the suite flies the harder one."""
+
+
+def test_demo_finds_metric_scale_and_holds_the_formation_with_10pct_zenoh_loss(tmp_path):
+    summary = run_demo(VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, loss=LOSS)
     report = {
         k: summary[k] for k in ("time_to_scale_s", "final_scale_error", "final_bearing_error_deg")
     }
@@ -37,11 +42,9 @@ def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path, loss):
     assert summary["final_bearing_error_deg"] < BEARING_TOLERANCE_DEG, report
     assert summary["time_to_scale_s"] is not None, report
     assert summary["landed"], "every vehicle lands at the end"
-    if loss > 0.0:
-        assert summary["dropped_messages"] > 0, "the injected loss is counted"
-        return
+    assert summary["dropped_messages"] > 0, "the injected loss is counted"
     # within noise of the headless runner flying the same configurations from the same start
-    reference, _ = headless_demo(VEHICLES, seed=0, duration_s=25.0)
+    reference, _ = headless_demo(VEHICLES, seed=0, duration_s=25.0, loss=LOSS)
     assert reference["final_scale_error"] < SCALE_TOLERANCE
     assert reference["final_bearing_error_deg"] < BEARING_TOLERANCE_DEG
     assert abs(summary["final_scale_error"] - reference["final_scale_error"]) < SCALE_TOLERANCE
