@@ -160,13 +160,12 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     k_distance_loc: float = 1.0
     k_vertical_loc: float = 4.0
     """Gain of the gravity (bearing elevation) term of angle localization; 0 = angles only."""
-    eigen_k_m: float = 8.0
-    eigen_k_t: float = 10.0
-    eigen_k_n: float = 10.0
-    eigen_gamma: float = 20.0
-    eigen_k_p: float = 8.0
-    eigen_k_i: float = 8.0
-    eigen_momentum: float = 0.0
+    eigen_columns: int = 3
+    eigen_step: float = 1.5
+    eigen_k_t: float = 0.3
+    eigen_k_n: float = 0.2
+    """Distributed eigen-estimation (:class:`onboard.estimation.distributed_eigen.EigenGains`):
+    vectors tracked, power step over the degree bound, per-round consensus gains."""
     rigidity_warmup_s: float = 0.0
     """Seconds after the first step during which the rigidity layer's actions are zero, so
     angle localization and the eigen-estimate converge before the team moves."""

@@ -163,9 +163,11 @@ class RigidityLayer:
             k_track_range=cfg.k_track_range,
             k_track_camera=cfg.k_track_camera,
         )
-        # per-round gains: the same for any message rate and team size (cfg.eigen_* are the
-        # rates of the earlier continuous-time single-vector scheme and are not used)
-        self.eigen = DistributedEigenEstimator.start(cfg.seed, self.id, EigenGains())
+        # per-round gains: the same for any message rate and team size
+        gains = EigenGains(
+            columns=cfg.eigen_columns, step=cfg.eigen_step, k_t=cfg.eigen_k_t, k_n=cfg.eigen_k_n
+        )
+        self.eigen = DistributedEigenEstimator.start(cfg.seed, self.id, gains)
         self.wire = EigenWire(self.eigen.gains.columns)
         self._loc_in: dict[int, AngleLocalizationShare] = {}
         self._eig_in: dict[int, RigidityEigenShare] = {}
