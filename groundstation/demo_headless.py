@@ -28,7 +28,7 @@ from onboard.daemon.config import load_fleet
 from onboard.daemon.loop import agent_config
 from onboard.geometry import bearings_body
 from onboard.rigidity.bearing import ibr_r3s1
-from sim.runner import Recording, RunnerConfig, run
+from sim.runner import Recording, RunnerConfig, converged_time, run
 
 DEFAULT_LATENCY_S = 0.03
 FINAL_WINDOW_S = 2.0
@@ -79,10 +79,6 @@ def summarize_recording(
     d_true = np.linalg.norm(rec.p_ned[:, b] - rec.p_ned[:, a], axis=2)
     with np.errstate(divide="ignore", invalid="ignore"):
         err = np.abs(1.0 / rec.chi_hat - d_true) / d_true
-    ok = np.all(err < SCALE_TOLERANCE, axis=1)
-    bad = np.nonzero(~ok)[0]
-    first_good = bad[-1] + 1 if len(bad) else 0
-    time_to_scale = float(t[first_good]) if first_good < len(t) else None
     desired, _ = bearings_body(p_desired_ned, yaw_desired_rad, rec.edges)
     bearing_error = np.array(
         [
@@ -100,7 +96,7 @@ def summarize_recording(
     ]
     return {
         "vehicles": vehicles,
-        "time_to_scale_s": time_to_scale,
+        "time_to_scale_s": converged_time(t, err, SCALE_TOLERANCE),
         "final_scale_error": float(np.nanmax(np.nanmean(err[tail], axis=0))),
         "final_bearing_error_deg": float(bearing_error[tail].mean()),
         "min_rigidity_eigenvalue": float(min(eig)),
