@@ -53,6 +53,10 @@ class OwnMeasurements(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     bearings: tuple[BearingMeasurement, ...] = ()
     ranges: tuple[RangeMeasurement, ...] = ()
     targets: tuple[TargetMeasurement, ...] = ()
+    odometry_stamp_s: float | None = None
+    """When the autopilot measured ``yaw_rad``, ``v_body`` and ``yaw_rate_rad_s`` (same clock as
+    ``t_s``; ``None``: at ``t_s``). An autopilot streams them at 20-50 Hz and they reach the core
+    tens of milliseconds later; the SfM observers pair them with camera frames by time."""
 
 
 class Setpoint(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -159,6 +159,11 @@ class Telemetry:
     system_id: int | None
     t_boot_s: float | None
     """Autopilot time (``time_boot_ms``) of the latest attitude or position message."""
+    t_boot_attitude_s: float | None
+    """Autopilot time of the attitude (roll, pitch, yaw, yaw rate) held."""
+    t_boot_velocity_s: float | None
+    """Autopilot time of the velocity (``v_ned``) held. Autopilots stream attitude and
+    position separately, so the two are usually a few milliseconds apart."""
     roll_rad: float
     pitch_rad: float
     yaw_rad: float

@@ -204,7 +204,7 @@ class MavsdkLink(LinkBookkeeping):
         st = self._state
         st.roll_rad, st.pitch_rad, st.yaw_rad = roll, pitch, yaw
         st.t_attitude_s = self._clock()
-        st.t_boot_s = a.timestamp_us / 1e6
+        st.t_boot_s = st.t_boot_attitude_s = a.timestamp_us / 1e6
 
     def _on_rates(self, w: Any) -> None:
         if not math.isfinite(w.yaw_rad_s):

@@ -233,6 +233,8 @@ class TelemetryState:
     v_ned: Vec3 = (0.0, 0.0, 0.0)
     altitude_m: float = 0.0
     t_boot_s: float | None = None
+    t_boot_attitude_s: float | None = None
+    t_boot_velocity_s: float | None = None
     base_mode: int = 0
     custom_mode: int = 0
     mode: str = "UNKNOWN"
@@ -279,13 +281,13 @@ class TelemetryState:
         self.pitch_rad = float(msg.pitch)
         self.yaw_rad = float(msg.yaw)
         self.yaw_rate_radps = float(msg.yawspeed)
-        self.t_boot_s = msg.time_boot_ms / 1000.0
+        self.t_boot_s = self.t_boot_attitude_s = msg.time_boot_ms / 1000.0
 
     def _on_local_position_ned(self, msg: Any, now_s: float) -> None:
         self.t_velocity_s = now_s
         self.v_ned = (float(msg.vx), float(msg.vy), float(msg.vz))
         self.altitude_m = -float(msg.z)
-        self.t_boot_s = msg.time_boot_ms / 1000.0
+        self.t_boot_s = self.t_boot_velocity_s = msg.time_boot_ms / 1000.0
 
     def _on_extended_sys_state(self, msg: Any, _now_s: float) -> None:
         self.landed_state = int(msg.landed_state)
@@ -344,6 +346,8 @@ def snapshot(
         flavour=st.flavour,
         system_id=system_id,
         t_boot_s=st.t_boot_s,
+        t_boot_attitude_s=st.t_boot_attitude_s,
+        t_boot_velocity_s=st.t_boot_velocity_s,
         roll_rad=st.roll_rad,
         pitch_rad=st.pitch_rad,
         yaw_rad=st.yaw_rad,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import math
 import signal
 import sys
 import time
@@ -199,17 +198,14 @@ def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
     (``time_boot_ms``, which is simulation time) with the simulator's clock; otherwise the
     daemon's clock minus the attitude's age."""
     from onboard.daemon.camera_source import AttitudeSample
+    from onboard.daemon.clock import autopilot_stamp
 
     def sample() -> AttitudeSample | None:
-        tel = link.telemetry()
-        if not tel.connected:
+        tel, now = link.telemetry(), clock.now()
+        if not tel.connected or now is None:
             return None
-        if clock_kind == "sim":
-            t = tel.t_boot_s
-        else:
-            now = clock.now()
-            t = None if now is None else now - tel.attitude_age_s
-        if t is None or not math.isfinite(tel.attitude_age_s):
+        t = autopilot_stamp(tel.t_boot_s, tel.attitude_age_s, now, clock_kind == "sim")
+        if t is None:
             return None
         return AttitudeSample(t, tel.roll_rad, tel.pitch_rad)
 

@@ -7,6 +7,7 @@ simulator's clock, or every velocity it integrates would be scaled by the speed-
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Protocol
@@ -26,11 +27,22 @@ class WallClock:
         return time.time()
 
 
-class SimClockFollower:
-    """Follows ``SimClock`` samples (``messages.sim``): between samples it extrapolates with the
-    published speed-up (or holds, in lockstep). Feed it with :meth:`update`."""
+MAX_EXTRAPOLATION_S = 0.1
+"""Simulation seconds the follower runs ahead of the newest simulation time it has seen."""
 
-    def __init__(self) -> None:
+
+class SimClockFollower:
+    """Follows the simulator's time: ``SimClock`` samples (``messages.sim``, 10 Hz) with their
+    speed-up, and any newer simulation time seen elsewhere (:meth:`observe`: the autopilot's
+    ``time_boot_ms``, 20 Hz). Between them it extrapolates with the speed-up, by at most
+    ``max_extrapolation_s`` (or holds, in lockstep).
+
+    The cap matters on a loaded machine: a simulator that stalls for a few hundred milliseconds
+    also stops its world, and a follower that kept extrapolating would run the agents' estimators
+    (and stamp their data) ahead of a world that did not move."""
+
+    def __init__(self, max_extrapolation_s: float = MAX_EXTRAPOLATION_S) -> None:
+        self.max_extrapolation_s = max_extrapolation_s
         self._lock = threading.Lock()
         self._t_sim: float | None = None
         self._t_mono = 0.0
@@ -45,6 +57,20 @@ class SimClockFollower:
             self._t_sim, self._t_mono = t_sim_s, time.monotonic()
             self._speedup, self._lockstep = speedup, lockstep
 
+    def observe(self, t_sim_s: float) -> None:
+        """The simulation has reached at least ``t_sim_s`` (a stamp just received)."""
+        with self._lock:
+            if self._t_sim is None or t_sim_s <= self._extrapolated():
+                return
+            self._t_sim, self._t_mono = t_sim_s, time.monotonic()
+
+    def _extrapolated(self) -> float:
+        assert self._t_sim is not None
+        if self._lockstep:
+            return self._t_sim
+        ahead = self._speedup * (time.monotonic() - self._t_mono)
+        return self._t_sim + min(ahead, self.max_extrapolation_s)
+
     @property
     def speedup(self) -> float:
         """Simulation seconds per wall second (last published)."""
@@ -55,8 +81,16 @@ class SimClockFollower:
         with self._lock:
             if self._t_sim is None:
                 return None
-            t = self._t_sim
-            if not self._lockstep:
-                t += self._speedup * (time.monotonic() - self._t_mono)
+            t = self._extrapolated()
             self._last = max(self._last, t)  # extrapolation may overshoot a late sample
             return self._last
+
+
+def autopilot_stamp(t_boot_s: float | None, age_s: float, now_s: float, sim: bool) -> float | None:
+    """When the autopilot measured a sample, in the daemon's clock: its own stamp
+    (``time_boot_ms``) with the simulator's clock, whose autopilots count simulation time;
+    otherwise the daemon's clock at its arrival (``now_s - age_s``: a serial or UDP link adds
+    milliseconds, and an autopilot's boot clock is not the vehicles' shared clock)."""
+    if sim:
+        return t_boot_s
+    return now_s - age_s if math.isfinite(age_s) else None
