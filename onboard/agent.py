@@ -57,12 +57,16 @@ from onboard.estimation.consensus import PIConsensus
 from onboard.estimation.localization import LocalizationFilter
 from onboard.estimation.relative_yaw import RelativeYawEdge
 from onboard.estimation.sfm_observer import SfmEdge, WindowAverage, excitation
-from onboard.estimation.time_alignment import SignalHistory
+from onboard.estimation.time_alignment import SignalHistory, step_times
 from onboard.rigidity_layer import RigidityLayer
 
 Vec3 = tuple[float, float, float]
-MAX_SFM_STEP_S = 0.02
-"""Longest interval one explicit-Euler step of an SfM observer may span (``h dt = 0.2``)."""
+MAX_SFM_STEP_S = 0.01
+"""Longest interval one explicit-Euler step of an SfM observer may span (``h dt = 0.1``): longer
+intervals between samples are integrated in equal sub-steps."""
+MAX_ODOMETRY_GAP_S = 0.25
+"""Longest gap between two own (or a peer's) odometry samples the SfM observers integrate across
+(an autopilot streams 20-50 Hz); across a longer one they resynchronize after it."""
 Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
 
 
@@ -398,7 +402,10 @@ class AgentCore:
             self._drop("nonfinite_own")
             return Setpoint(v_body=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0), []
 
-        self._own_hist.add(t_s, (*u_i, w_i, yaw_own))
+        odo_s = own.odometry_stamp_s
+        if odo_s is None or not math.isfinite(odo_s) or odo_s > t_s + self.config.peer_timeout_s:
+            odo_s = t_s
+        self._own_hist.add(odo_s, (*u_i, w_i, yaw_own))
         self._take_bearings(own, yaw_own, outbox)
 
         # relative velocity on reciprocal edges: u_ij = iR_j u_j - u_i (eq. 7)
@@ -461,7 +468,7 @@ class AgentCore:
             MotionShare(
                 sender=self.id,
                 seq=self._seq,
-                stamp_s=t_s,
+                stamp_s=odo_s,
                 v_body=u_i,
                 yaw_rate_rad_s=w_i,
                 yaw_rad=yaw_own,
@@ -521,34 +528,49 @@ class AgentCore:
         """Own odometry yaw when a frame was captured: a frame reaches the core 10-150 ms late
         (Zenoh, image processing) and pairing it with the yaw of its arrival biases the
         relative yaw by ``yaw rate x latency``."""
-        sample = self._own_hist.at(stamp_s)
-        return yaw_now if sample is None else sample[4]
+        hist = self._own_hist
+        sample = hist.at(stamp_s)
+        if sample is None:
+            return yaw_now
+        if stamp_s > hist.newest_s:  # captured after the newest odometry: extrapolate
+            return sample[4] + sample[3] * min(stamp_s - hist.newest_s, MAX_ODOMETRY_GAP_S)
+        return sample[4]
 
     def _advance_sfm(self, j: int, edge: SfmEdge, t_s: float) -> bool:
-        """Advance the observer of edge ``(self, j)`` to ``tau = min(t, newest stamp of j's
-        motion)``, replaying own samples and camera frames in between with ``u_j`` interpolated
-        at the same instants (:mod:`onboard.estimation.time_alignment`). ``False`` while ``j``'s
-        motion is stale or the relative yaw unknown."""
-        peer = self._motion_hist[j]
-        tau1 = min(t_s, peer.newest_s)
+        """Advance the observer of edge ``(self, j)`` to the newest instant ``tau`` at which
+        every input is known: ``j``'s motion, the own odometry and a camera frame of ``j``.
+        It replays own samples and camera frames in between with ``u_j`` interpolated at the
+        same instants (:mod:`onboard.estimation.time_alignment`), so a frame is always taken
+        at its capture time, however late it arrives. ``False`` while any input is stale or
+        the relative yaw unknown."""
+        peer, own, frames = self._motion_hist[j], self._own_hist, self._sfm_frames[j]
+        newest_frame_s = max(frames[-1][0] if frames else -math.inf, edge.last_frame_s)
+        tau1 = min(t_s, peer.newest_s, own.newest_s, newest_frame_s)
         if not self._fresh(tau1, t_s) or self.yaw_edges[j].offset_rad is None:
             return False
         tau0 = self._sfm_t.get(j, tau1)
         if tau1 - tau0 > self.config.peer_timeout_s:  # after a gap: restart, do not integrate
             tau0 = tau1
+            edge.resync()
+        if tau1 < tau0:  # a late peer sample: keep the observer's time
+            return True
         self._sfm_t[j] = tau1
-        times = self._own_hist.times_in(tau0, tau1)
-        if not times or times[-1] < tau1:
-            times.append(tau1)
-        frames = self._sfm_frames[j]
         while len(frames) > 1 and frames[1][0] <= tau0:  # left over from a gap: keep the newest
             frames.popleft()
         prev = tau0
-        for s in times:
-            mine, theirs = self._own_hist.at(s), peer.at(s)
+        for s in step_times(own.times_in(tau0, tau1), tau0, tau1, MAX_SFM_STEP_S):
+            mine, theirs = own.at(s), peer.at(s)
             ds, prev = s - prev, s
-            if mine is None or theirs is None or ds > MAX_SFM_STEP_S:
-                continue  # a hole in the own history (a skipped tick): do not integrate across
+            hole = max(own.gap_at(s), peer.gap_at(s)) > MAX_ODOMETRY_GAP_S
+            if mine is None or theirs is None or hole:
+                # a hole in the own or the peer's odometry (a stalled process, lost messages):
+                # do not integrate across it, and restart the bearing state after it
+                if edge.beta_hat is not None:
+                    self._drop("sfm_hole")  # the frames inside it are not used
+                edge.resync()
+                while frames and frames[0][0] <= s:
+                    frames.popleft()
+                continue
             psi = self.yaw_edges[j].psi(mine[4], theirs[4])
             assert psi is not None
             uj = _rotz(psi, (theirs[0], theirs[1], theirs[2]))

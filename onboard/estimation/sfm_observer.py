@@ -160,6 +160,16 @@ class SfmEdge:
         if self.beta_hat is None:
             self.beta_hat = self.beta_pred
 
+    def resync(self) -> None:
+        """Forget the bearing state after a hole in the inputs; the next frame restarts it.
+
+        ``betahat`` is an estimate of a *measured* quantity: across a hole it was not integrated
+        while the true bearing moved on, and the first frame after it would show up as a large
+        error ``xi`` that eq. 8 turns into a kick of ``chihat`` (``-alpha Omega xi``). Setting
+        ``betahat`` to the next measurement loses nothing; ``chihat`` is kept."""
+        self.beta_hat = None
+        self.beta_pred = None
+
     def step(self, t_s: float, dt: float, u_ij: Vec3, w_i: float) -> None:
         """Advance the observer by ``dt`` with relative velocity ``u_ij`` and own yaw rate."""
         beta, beta_hat = self.beta_pred, self.beta_hat

@@ -60,6 +60,17 @@ class SignalHistory:
         """Sample times in ``(t0_s, t1_s]``."""
         return self._t[bisect_right(self._t, t0_s) : bisect_right(self._t, t1_s)]
 
+    def gap_at(self, t_s: float) -> float:
+        """Length of the interval between the samples around ``t_s`` (``0`` on a sample; after
+        the newest, the time since it; ``inf`` before the oldest): how far :meth:`at` bridges."""
+        ts = self._t
+        k = bisect_right(ts, t_s)
+        if k == 0:
+            return math.inf
+        if ts[k - 1] == t_s:
+            return 0.0
+        return (ts[k] if k < len(ts) else t_s) - ts[k - 1]
+
     def at(self, t_s: float) -> Sample | None:
         """The signal at ``t_s``: linear between the bracketing samples, the newest sample held
         after it, ``None`` before the oldest."""
@@ -77,3 +88,24 @@ class SignalHistory:
             m = self.angle_index
             out[m] = x0[m] + a * math.remainder(x1[m] - x0[m], math.tau)
         return tuple(out)
+
+
+def step_times(
+    sample_times: Sequence[float], t0_s: float, t1_s: float, max_step_s: float
+) -> list[float]:
+    """Integration instants in ``(t0_s, t1_s]``: every sample time in that interval and ``t1_s``,
+    with any interval longer than ``max_step_s`` split into equal sub-steps. An explicit
+    integrator stepping through them takes no step longer than ``max_step_s``."""
+    if not max_step_s > 0.0:
+        raise ValueError(f"max_step_s must be > 0, got {max_step_s}")
+    knots = [t for t in sample_times if t0_s < t < t1_s]
+    if t1_s > t0_s:
+        knots.append(t1_s)
+    out: list[float] = []
+    prev = t0_s
+    for t in knots:
+        n = math.ceil((t - prev) / max_step_s - 1e-9)
+        out.extend(prev + (t - prev) * k / n for k in range(1, n))
+        out.append(t)
+        prev = t
+    return out

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from onboard.estimation.time_alignment import SignalHistory
+from onboard.estimation.time_alignment import SignalHistory, step_times
 
 
 def test_history_interpolates_holds_and_refuses_the_unknown_past():
@@ -31,6 +31,27 @@ def test_history_interpolates_angles_on_the_short_arc_and_forgets_old_samples():
     for k in range(3, 200):
         h.add(0.1 * k, (0.0,))
     assert h.oldest_s >= h.newest_s - 0.5 - 16 * 0.1 and len(h) < 30
+
+
+def test_gap_at_is_the_interval_interpolation_bridges():
+    h = SignalHistory()
+    for t in (0.0, 0.05, 0.6):
+        h.add(t, (t,))
+    assert h.gap_at(-0.1) == math.inf
+    assert h.gap_at(0.05) == 0.0
+    assert h.gap_at(0.02) == pytest.approx(0.05)
+    assert h.gap_at(0.3) == pytest.approx(0.55)  # the hole a stalled process leaves
+    assert h.gap_at(0.7) == pytest.approx(0.1)  # held after the newest: time since it
+
+
+def test_step_times_keep_every_sample_and_split_long_intervals():
+    out = step_times([0.0, 0.05, 0.07, 0.2], 0.0, 0.1, 0.02)
+    assert out[-1] == 0.1 and 0.05 in out and 0.07 in out and 0.0 not in out and 0.2 not in out
+    steps = [b - a for a, b in zip([0.0, *out], out, strict=False)]
+    assert max(steps) <= 0.02 + 1e-12 and min(steps) > 0.0
+    assert step_times([], 0.3, 0.3, 0.01) == []
+    with pytest.raises(ValueError):
+        step_times([], 0.0, 1.0, 0.0)
 
 
 def test_demo_formation_converges_with_late_messages_late_frames_and_loss():
