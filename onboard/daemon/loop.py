@@ -37,6 +37,7 @@ from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
 from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
+from onboard.daemon.odometry import odometry
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.geometry import bearings_body
 from onboard.graph import formation_edges
@@ -47,6 +48,8 @@ log = logging.getLogger(__name__)
 PHASES = ("connecting", "waiting", "ready", "flying", "holding", "pilot", "landing", "stopped")
 MAX_CORE_DT_S = 0.005
 """Longest integration step given to the core (its gains want <= 5 ms, see sim/runner.py)."""
+MIN_TICK_SPEEDUP = 0.05
+"""Below this simulation speed the daemon does not slow its ticks further (a stalled clock)."""
 MAX_GAP_S = 0.5
 """A longer gap between two ticks is skipped rather than integrated."""
 PEER_LOST_HOLD_S = 2.0
@@ -259,12 +262,17 @@ class AgentDaemon:
         frame = self.bearings.poll()
         if frame:
             self._newest_frame_s = max(self._newest_frame_s, *(b.stamp_s for b in frame))
+            self.metrics.frame_age_s.append(now_s - max(b.stamp_s for b in frame))
+        if tel.t_boot_s is not None:
+            self.metrics.telemetry_age_s.append(now_s - tel.t_boot_s)
+        odo = odometry(tel, now_s, sim=self.fleet.config.clock == "sim")
         return OwnMeasurements(
             t_s=now_s,
-            yaw_rad=tel.yaw_rad,
-            v_body=tel.v_body,
-            yaw_rate_rad_s=tel.yaw_rate_radps,
+            yaw_rad=odo.yaw_rad,
+            v_body=odo.v_body,
+            yaw_rate_rad_s=odo.yaw_rate_rad_s,
             bearings=frame or (),
+            odometry_stamp_s=odo.stamp_s,
         )
 
     def _status(self, now_s: float, tel: Telemetry) -> VehicleStatus:
@@ -295,22 +303,24 @@ class AgentDaemon:
         c = self.fleet.config
         flight = threading.Thread(target=self._flight, name=f"flight-{self.id}", daemon=True)
         flight.start()
-        period = 1.0 / c.rates.core
         publish_every = max(1, round(c.rates.core / c.rates.publish))
         status_every = max(1, round(c.rates.core / c.rates.status))
         outbox = []
         step = 0
         next_tick = time.monotonic()
         while not self.stop_event.is_set():
-            next_tick += period
+            next_tick += self._tick_period_s()
             delay = next_tick - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             else:
                 next_tick = time.monotonic()  # overrun: do not try to catch up
             self.metrics.tick_late_s.append(max(0.0, time.monotonic() - next_tick))
-            now_s = self._now()
             tel = self.link.telemetry()
+            observe = getattr(self.clock, "observe", None)
+            if observe is not None and tel.t_boot_s is not None:
+                observe(tel.t_boot_s)  # the simulator's autopilot counts simulation time
+            now_s = self._now()
             if now_s is None or not tel.connected:
                 continue
             self._handle_commands()
@@ -330,6 +340,15 @@ class AgentDaemon:
                 if self.on_status is not None:
                     self.on_status(status)
         self._shutdown()
+
+    def _tick_period_s(self) -> float:
+        """Wall seconds between core ticks: the configured rates are per second of the daemon's
+        clock, so behind a simulator slower than real time the daemon ticks that much less
+        often (six daemons ticking at 100 Hz of wall time saturated two cores at any simulation
+        speed). Faster than real time it keeps the wall rate: the tick rate per simulated
+        second drops instead."""
+        speedup = getattr(self.clock, "speedup", 1.0)
+        return 1.0 / (self.fleet.config.rates.core * min(1.0, max(speedup, MIN_TICK_SPEEDUP)))
 
     def _step_core(self, now_s: float, tel: Telemetry) -> tuple[Setpoint, list[Payload]]:
         """Step the core to ``now_s`` in sub-steps of at most :data:`MAX_CORE_DT_S`.
