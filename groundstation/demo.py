@@ -268,7 +268,11 @@ def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
     final_scale = float(np.nanmax(np.nanmean(err[tail], axis=0))) if tail.any() else None
     final_bearing = float(np.mean(np.array(s.bearing_error_deg)[tail])) if tail.any() else None
     status = ev.snapshot()
-    dropped = sum(sum(st.dropped.values()) for st in status.values())
+    by_reason: dict[str, int] = {}
+    for st in status.values():
+        for reason, count in st.dropped.items():
+            by_reason[reason] = by_reason.get(reason, 0) + int(count)
+    dropped = sum(by_reason.values())
     eig = np.array(s.rigidity_eigenvalue)[flying] if flying.any() else np.array([])
     return {
         "vehicles": vehicles,
@@ -279,6 +283,7 @@ def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
         "final_bearing_error_deg": final_bearing,
         "min_rigidity_eigenvalue": float(eig.min()) if len(eig) else None,
         "dropped_messages": int(dropped),
+        "dropped_by_reason": dict(sorted(by_reason.items())),
         "bad_samples": ev.bad_samples,
         "mission_start_s": start,
         "reciprocal_pairs": ev.pairs.tolist(),
