@@ -19,19 +19,18 @@ in real time; a correctness test must not depend on that margin (real-time capac
 by benchmarks/bench_daemon.py)."""
 MISSION_S = 34.0
 """Simulation seconds of mission before the demo lands everyone: take-off (about 8 s), the active
-motion until every SfM edge is excited (10-20 s), then the formation settles (quiet-machine run
-with 10% loss: scale within 0.4% at 10 s, formation error 14.7 deg at 14 s, 3.1 at 26 s, 1.7 at
-30 s)."""
+motion until every SfM edge is excited (10-20 s), then the formation settles (quiet machine, 10%
+loss: scale within 2% 2.0 s after the start, formation 0.9 deg at the end)."""
+LOSS = 0.1
+"""Every daemon drops 10% of the peer messages it receives (``zenoh.inject_loss``). Runs of this
+test's mission: quiet machine 0.08% scale / 0.9 deg; one core taken by a busy loop 0.23% /
+0.8 deg (docs/demo.md, "How robust it is")."""
 SCALE_TOLERANCE = 0.02
 BEARING_TOLERANCE_DEG = 3.0
 
 
-# The same run with 10% injected Zenoh loss (``loss=0.1``) ends at 0.4-2.9% scale error: not
-# reliably under 2% (issue 6), so the suite flies the case the stack meets every time.
-
-
 def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path):
-    summary = run_demo(VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP)
+    summary = run_demo(VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, loss=LOSS)
     report = {
         k: summary[k] for k in ("time_to_scale_s", "final_scale_error", "final_bearing_error_deg")
     }
@@ -40,8 +39,9 @@ def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path):
     assert summary["final_bearing_error_deg"] < BEARING_TOLERANCE_DEG, report
     assert summary["time_to_scale_s"] is not None, report
     assert summary["landed"], "every vehicle lands at the end"
+    assert summary["dropped_by_reason"].get("injected_loss", 0) > 0, "the loss was injected"
     # within noise of the headless runner flying the same configurations from the same start
-    reference, _ = headless_demo(VEHICLES, seed=0, duration_s=25.0)
+    reference, _ = headless_demo(VEHICLES, seed=0, duration_s=25.0, loss=LOSS)
     assert reference["final_scale_error"] < SCALE_TOLERANCE
     assert reference["final_bearing_error_deg"] < BEARING_TOLERANCE_DEG
     assert abs(summary["final_scale_error"] - reference["final_scale_error"]) < SCALE_TOLERANCE
