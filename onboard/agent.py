@@ -552,7 +552,7 @@ class AgentCore:
         if tau1 - tau0 > self.config.peer_timeout_s:  # after a gap: restart, do not integrate
             tau0 = tau1
             edge.resync()
-        if tau1 < tau0:  # a late peer sample: keep the observer's time
+        if tau1 < tau0:  # the newest frame went back (its buffer was emptied): wait
             return True
         self._sfm_t[j] = tau1
         while len(frames) > 1 and frames[1][0] <= tau0:  # left over from a gap: keep the newest

@@ -133,3 +133,25 @@ def test_window_average_is_the_moving_integral():
     for k in range(1, 201):
         w2.add(k * 0.002, 2.0, 0.002)
     assert w2.value == pytest.approx(2.0 * 0.4)  # only 0.4 s of data so far
+
+
+def test_resync_restarts_the_bearing_state_without_a_kick():
+    """After a hole the first frame shows the bearing moved on; a resynchronized observer takes
+    it as its new state (no ``-alpha Omega xi`` kick), and keeps ``chihat``."""
+    u = (0.0, 1.0, 0.0)
+
+    def after_hole(resync: bool) -> float:
+        edge = SfmEdge(chi_hat=0.2)
+        edge.new_bearing((1.0, 0.0, 0.0), 0.0, 0.0, u, 0.0)
+        edge.step(0.01, 0.01, u, 0.0)
+        if resync:
+            edge.resync()
+            edge.step(0.02, 0.01, u, 0.0)  # no frame yet: nothing to integrate
+            assert edge.chi_hat == pytest.approx(0.2, abs=1e-3)
+        beta = (math.cos(0.3), math.sin(0.3), 0.0)  # 1 s later, the target has moved on
+        edge.new_bearing(beta, 1.0, 1.0, u, 0.0)
+        chi = edge.chi_hat
+        edge.step(1.01, 0.01, u, 0.0)
+        return abs(edge.chi_hat - chi)
+
+    assert after_hole(resync=True) < 1e-3 < after_hole(resync=False)
