@@ -33,8 +33,10 @@ from messages.keys import key
 from messages.sim import Truth
 from messages.transport import ZenohSettings, loopback_endpoint, open_session
 from onboard.geometry import FloatArray, IntArray, bearings_body
-from onboard.graph import normalize_edges, reciprocal_pairs
+from onboard.graph import complete_graph, normalize_edges, reciprocal_pairs
+from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.bearing import ibr_r3s1
+from onboard.rigidity.weights import SensingModel
 
 LANDING_TIMEOUT_S = 30.0
 """Simulation seconds the vehicles get to land after the mission."""
@@ -48,6 +50,18 @@ periods (at least the fleet default, 0.5 s). Rendered frames come 5-10 per simul
 and 0.05-0.15 s late, and the renderer drops a frame when it falls behind: with the default
 0.5 s, one dropped frame at 5 Hz stopped the vehicle, and the holds stalled the scale estimate
 (docs/vision.md, "Flying on camera bearings")."""
+CAMERA_FOV_DEG = 360.0
+CAMERA_RANGE_M = 80.0
+"""The simulator's virtual camera in the demo (all-round, long range); the rigidity layer's
+sensing model (``[rigidity] fov_deg, range_m``) is the same camera."""
+LAMBDA_SAFE = 0.2
+"""The rigidity maintenance's safe level (paper 003 scenarios' value) ..."""
+LAMBDA_SAFE_FRACTION = 0.5
+"""... or this fraction of the planned formation's weighted eigenvalue, if that is lower: the
+barrier must not push the team away from the formation it is told to hold (a ring of 4 at
+mixed heights is nearly flat: 0.088)."""
+LAMBDA_MIN_FRACTION = 0.1
+"""``lambda_min`` (where the barrier grows without bound) as a fraction of ``lambda_safe``."""
 LANDED_HEIGHT_M = 0.2
 SCALE_TOLERANCE = 0.02
 """Relative distance error below which an SfM edge counts as having the metric scale."""
@@ -108,6 +122,17 @@ def _formation_toml(p: FloatArray, yaw: FloatArray, edges: IntArray | None, name
     return "\n".join(lines)
 
 
+def demo_lambda_safe(plan: FormationPlan) -> float:
+    """The demo's ``[rigidity] lambda_safe``: :data:`LAMBDA_SAFE`, or :data:`LAMBDA_SAFE_FRACTION`
+    of the planned formation's weighted angle rigidity eigenvalue (all-round camera, every
+    vehicle a candidate) if that is lower."""
+    model = SensingModel(CAMERA_FOV_DEG, CAMERA_RANGE_M)
+    lam, _ = weighted_angle_rigidity_eigenvalue(
+        plan.p_ned, plan.yaw_rad, complete_graph(len(plan.p_ned)), model
+    )
+    return min(LAMBDA_SAFE, LAMBDA_SAFE_FRACTION * float(lam))
+
+
 @dataclass(frozen=True)
 class DemoPorts:
     zenoh: int
@@ -116,10 +141,17 @@ class DemoPorts:
 
 
 def write_demo_files(
-    out: Path, plan: FormationPlan, ports: DemoPorts, fleet: str, mode: str, loss: float = 0.0
+    out: Path,
+    plan: FormationPlan,
+    ports: DemoPorts,
+    fleet: str,
+    mode: str,
+    loss: float = 0.0,
+    rigidity: bool = True,
 ) -> Path:
     """Formation, start layout and fleet files for the simulator and the daemons; ``loss`` is
-    the fraction of peer messages every daemon drops on purpose (``zenoh.inject_loss``)."""
+    the fraction of peer messages every daemon drops on purpose (``zenoh.inject_loss``),
+    ``rigidity`` turns paper 003's rigidity maintenance on (``[rigidity] maintenance``)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "formation.toml").write_text(
         _formation_toml(plan.p_ned, plan.yaw_rad, plan.edges, "demo")
@@ -128,6 +160,7 @@ def write_demo_files(
         _formation_toml(plan.p_start_ned, plan.yaw_start_rad, None, "demo-start")
     )
     fleet_path = out / "fleet.toml"
+    lam_safe = demo_lambda_safe(plan)
     fleet_path.write_text(
         "\n".join(
             [
@@ -144,6 +177,13 @@ def write_demo_files(
                 "[zenoh]",
                 f"port_base = {ports.zenoh}",
                 f"inject_loss = {loss}",
+                "",
+                "[rigidity]",
+                f"maintenance = {'true' if rigidity else 'false'}",
+                f"fov_deg = {CAMERA_FOV_DEG}",
+                f"range_m = {CAMERA_RANGE_M}",
+                f"lambda_safe = {lam_safe:.6g}",
+                f"lambda_min = {LAMBDA_MIN_FRACTION * lam_safe:.6g}",
                 "",
             ]
         )
@@ -335,6 +375,7 @@ def run_demo(
     speedup: float = 1.0,
     render_rate_hz: float = 10.0,
     loss: float = 0.0,
+    rigidity: bool = True,
 ) -> dict[str, Any]:
     """Run the whole mission (module docstring) and return its summary.
 
@@ -350,7 +391,7 @@ def run_demo(
     ports = DemoPorts(zenoh=base, mavlink=base + 10 + vehicles, gcs=base + 9)
     plan = plan_formation(vehicles, seed)
     fleet = f"demo{base}"
-    fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss)
+    fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity)
     if bearings == "camera":
         stale_s = max(0.5, CAMERA_STALE_FRAMES / render_rate_hz)
         with fleet_path.open("a") as f:
@@ -374,7 +415,7 @@ def run_demo(
                 "--layout", str(out / "start.toml"), "--zenoh", loopback_endpoint(ports.zenoh),
                 "--fleet", fleet, "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
                 "--bind-base", str(ports.mavlink + vehicles + 5),
-                "--camera-fov", "360", "--camera-range", "80", "--seed", str(seed), "--quiet",
+                "--camera-fov", str(CAMERA_FOV_DEG), "--camera-range", str(CAMERA_RANGE_M), "--seed", str(seed), "--quiet",
                 "--speedup", str(speedup), *camera_args,
             ],
         )  # fmt: skip

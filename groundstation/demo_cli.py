@@ -182,6 +182,13 @@ def demo(
         float,
         typer.Option(help="Fault injection: fraction of peer messages every daemon drops."),
     ] = 0.0,
+    rigidity: Annotated[
+        bool,
+        typer.Option(
+            help="Rigidity maintenance (paper 003): keep the sensing graph's weighted angle "
+            "rigidity eigenvalue above its safe level, and avoid collisions."
+        ),
+    ] = True,
     headless: Annotated[
         bool,
         typer.Option(
@@ -208,7 +215,7 @@ def demo(
         typer.echo("error: --bearings must be sim or camera", err=True)
         raise typer.Exit(2)
     if headless:
-        _headless(vehicles, seed, duration, mode, loss, json)
+        _headless(vehicles, seed, duration, mode, loss, json, rigidity)
         return
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     auto = default_speedup(vehicles, cores or 1)
@@ -262,7 +269,7 @@ def demo(
             summary = run_demo(
                 vehicles, flavour, duration, out_dir, seed, mode, on_tick, bearings=bearings,
                 camera_files=camera_files, markers_file=markers_file, speedup=speed,
-                render_rate_hz=render_rate, loss=loss,
+                render_rate_hz=render_rate, loss=loss, rigidity=rigidity,
             )  # fmt: skip
     except KeyboardInterrupt:
         console.print("[yellow]interrupted: every process was stopped[/yellow]")
@@ -280,7 +287,9 @@ def demo(
         console.print_json(jsonlib.dumps(summary))
 
 
-def _headless(vehicles: int, seed: int, duration: float, mode: str, loss: float, json: bool):
+def _headless(
+    vehicles: int, seed: int, duration: float, mode: str, loss: float, json: bool, rigidity: bool
+):
     from rich.progress import Progress
 
     from groundstation.demo_headless import headless_demo
@@ -289,7 +298,7 @@ def _headless(vehicles: int, seed: int, duration: float, mode: str, loss: float,
     with Progress(console=console, transient=True) as bar:
         task = bar.add_task(f"headless mission, {vehicles} vehicles, {duration:.0f} s", total=1.0)
         summary, _ = headless_demo(
-            vehicles, seed, duration, mode=mode, loss=loss,
+            vehicles, seed, duration, mode=mode, loss=loss, rigidity=rigidity,
             progress=lambda f: bar.update(task, completed=f),
         )  # fmt: skip
     summary["headless"] = True

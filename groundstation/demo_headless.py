@@ -46,13 +46,16 @@ def headless_demo(
     tau_v_s: float = 0.3,
     tau_yaw_s: float = 0.2,
     camera_latency_s: float = 0.0,
+    rigidity: bool = True,
     progress: Callable[[float], None] | None = None,
 ) -> tuple[dict[str, Any], Recording]:
     """Fly the demo's mission headless; returns ``(summary, recording)``."""
     plan = plan_formation(vehicles, seed)
     with tempfile.TemporaryDirectory() as tmp:
         ports = DemoPorts(zenoh=7447, mavlink=14540, gcs=14550)  # written, never opened
-        fleet = load_fleet(write_demo_files(Path(tmp), plan, ports, "headless", mode))
+        fleet = load_fleet(
+            write_demo_files(Path(tmp), plan, ports, "headless", mode, rigidity=rigidity)
+        )
         configs = [agent_config(fleet, i) for i in range(vehicles)]
     runner = RunnerConfig(
         duration_s=duration_s,

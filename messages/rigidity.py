@@ -31,7 +31,8 @@ class RigidityEigenShare(Payload, tag="peer.rigidity_eigen"):
     """Distributed power iteration (``onboard.estimation.distributed_eigen``): the sender's
     eigenvector block ``v``, its PI-consensus state ``(x, z)`` of the averaged quantities, its
     eigenvalue estimate, and per target its angles' blocks of ``M_w v`` (``mv``) and of
-    ``d(v^T M_w v)/dp`` (``form_grad_ned``)."""
+    ``d(v^T M_w v)/dp`` (``form_grad_ned``); ``round``: how many rounds the sender has taken
+    (receivers wait for their neighbours' previous round)."""
 
     v: Vec3
     x: list[float]
@@ -40,6 +41,9 @@ class RigidityEigenShare(Payload, tag="peer.rigidity_eigen"):
     targets: list[int]
     mv: list[Vec3]
     form_grad_ned: list[Vec3]
+    round: int = 0
 
 
 RigidityPayload = AngleLocalizationShare | RigidityEigenShare
+RIGIDITY_KINDS = ("angle_localization", "rigidity_eigen")
+"""Their key kinds (``bf/<fleet>/<id>/peer/<kind>``, the tags without ``peer.``)."""

@@ -142,6 +142,12 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     rigidity_maintenance: bool = False
     """Add the rigidity-maintenance action (eq. 19-23) and collision avoidance to the mode's
     command. Mode ``rigidity-tracking`` without it is the paper's "maintenance off" baseline."""
+    rigidity_edges: tuple[tuple[int, int], ...] = ()
+    """The rigidity layer's graph (default: ``edges``): ``(i, j)`` when ``i``'s camera may see
+    ``j``. Its angles make the weighted rigidity matrix, and its out-neighbours are the
+    candidates of the eigen-estimate; the sensing weights drop the ones out of view. With an
+    all-round camera the complete graph is the graph the cameras actually sense, and the
+    formation's own (sparser) edges would understate the rigidity the team has."""
     rigidity_eigen: Literal["distributed", "centralized"] = "distributed"
     """Where ``lambda`` and its gradient come from: the distributed power iteration, or every
     agent's shared estimate (needs all-to-all communication)."""
@@ -178,7 +184,7 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
         n = self.n_agents
         if not 0 <= self.agent_id < n:
             raise ValueError(f"agent_id {self.agent_id} outside 0..{n - 1}")
-        for i, j in self.edges:
+        for i, j in (*self.edges, *self.rigidity_edges):
             if not (0 <= i < n and 0 <= j < n) or i == j:
                 raise ValueError(f"bad edge ({i}, {j}) for {n} agents")
         if len(self.p_hat0_ned) not in (0, n) or len(self.yaw_hat0_rad) not in (0, n):
@@ -225,8 +231,13 @@ class AgentCore:
         if not self.paper000:  # no SfM edges, relative yaws or bearing localization
             self.reciprocal, self.running = [], []
         self.rigidity: RigidityLayer | None = None
+        self.rigidity_neighbours: frozenset[int] = frozenset()
         if cfg.mode == "rigidity-tracking" or cfg.rigidity_maintenance:
-            self.rigidity = RigidityLayer(cfg, self.out_targets, self.neighbours)
+            r_edges = cfg.rigidity_edges or cfg.edges
+            r_out = sorted({j for i, j in r_edges if i == me})
+            r_in = {i for i, j in r_edges if j == me}
+            self.rigidity_neighbours = frozenset(r_out) | r_in
+            self.rigidity = RigidityLayer(cfg, r_out, sorted(self.rigidity_neighbours))
 
         p0 = cfg.p_hat0_ned or tuple((0.0, 0.0, 0.0) for _ in range(cfg.n_agents))
         y0 = cfg.yaw_hat0_rad or tuple(0.0 for _ in range(cfg.n_agents))
@@ -305,7 +316,10 @@ class AgentCore:
 
     def _receive(self, msg: Payload, t_s: float) -> None:
         j = msg.sender
-        if j not in self._neighbour_set:
+        rigidity_msg = self.rigidity is not None and isinstance(
+            msg, (AngleLocalizationShare, RigidityEigenShare)
+        )
+        if j not in (self.rigidity_neighbours if rigidity_msg else self._neighbour_set):
             self._drop("not_neighbour")
             return
         handler = self._handlers.get(type(msg))

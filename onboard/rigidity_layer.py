@@ -56,6 +56,12 @@ if TYPE_CHECKING:
 Vec3 = tuple[float, float, float]
 FRAME_MAX_AGE_S = 0.2
 """Bearings older than this are not part of the current sensing graph."""
+EIGEN_AGREEMENT = 0.5
+"""The maintenance acts only while the neighbours' eigenvalue estimates lie within this fraction
+of ``lambda_safe`` of the own one (:meth:`RigidityLayer._agreement`)."""
+ROUND_TIMEOUT_S = 0.3
+"""The eigen-estimate takes its next round once every candidate's share is newer than the one
+its last round used, or after this long (a lost message must not stall it)."""
 
 
 def _vec(a: FloatArray) -> Vec3:
@@ -179,6 +185,12 @@ class RigidityLayer:
         self.u_rigidity = np.zeros(3)
         self.w_rigidity = 0.0
         self._t0: float | None = None
+        self._round_t_s = -math.inf
+        self.rounds = 0
+        """Rounds of the distributed eigen-estimate taken so far."""
+        self.agreed = False
+        """Whether the candidates' eigenvalue estimates agree with this one (the maintenance
+        acts only then)."""
         self.nonfinite = 0
         """Steps whose action was not finite (dropped to zero)."""
 
@@ -275,7 +287,9 @@ class RigidityLayer:
             if ids == cand
             else st.restrict(whole, np.array([pos[j] for j in cand], dtype=np.int64))
         )
-        self._eigen_step(t_s, p_own, p_est, fresh, cand, s_cand, seq, outbox)
+        if self._new_round(t_s, fresh, cand):
+            self._eigen_step(t_s, p_own, p_est, fresh, cand, s_cand, seq, outbox)
+        self.agreed = self._agreement(fresh, cand)
 
         # 4. actions
         self._actions(own, t_s, p_own, p_est)
@@ -306,6 +320,39 @@ class RigidityLayer:
             if math.isfinite(r.range_m) and r.range_m > 0.0 and t_s - r.stamp_s <= FRAME_MAX_AGE_S:
                 out[r.target] = r.range_m
         return out
+
+    def _agreement(self, fresh: dict[int, RigidityEigenShare], cand: list[int]) -> bool:
+        """Whether every candidate's ``lambda_hat`` is within :data:`EIGEN_AGREEMENT` x
+        ``lambda_safe`` of this agent's.
+
+        The estimates are one consensus value once the iteration has converged; while it has
+        not (start-up, a restarted neighbour, an eigenvalue crossing it is still following on
+        a slow, lossy link) one agent's estimate can drop to 0 alone, and the barrier
+        ``V'(lambda)`` of eq. 19 turns that into a command of 10^4 m/s. A team that really
+        loses rigidity sees every estimate fall together, and is acted on."""
+        if self.cfg.rigidity_eigen == "centralized":
+            return True
+        tol = EIGEN_AGREEMENT * self.gains.lambda_safe
+        return bool(cand) and all(abs(fresh[j].lambda_hat - self.lambda_hat) <= tol for j in cand)
+
+    def _new_round(self, t_s: float, fresh: dict[int, RigidityEigenShare], cand: list[int]) -> bool:
+        """Whether the eigen-estimate takes a round now.
+
+        The subspace iteration and its consensus are defined in synchronous message rounds
+        (:mod:`onboard.estimation.distributed_eigen`): round ``r + 1`` combines the neighbours'
+        round ``r``. Stepped at every core tick with messages ``d`` ticks late, each round used
+        states ``d`` rounds old, and a delayed consensus is stable only while ``k mu_max d`` stays
+        below about ``pi / 2``: with 30 ms of latency at 200 Hz (``d = 7``) the estimate blew up
+        to 50x the eigenvalue and collapsed to 0. Waiting until every candidate's share is of
+        round ``r`` (or :data:`ROUND_TIMEOUT_S`) keeps ``d = 1`` at any tick rate and latency;
+        rounds then come once per message trip."""
+        behind = [fresh[j].round for j in cand]
+        if any(r < self.rounds for r in behind) and t_s - self._round_t_s < ROUND_TIMEOUT_S:
+            return False
+        # a (re)started agent joins at its neighbours' round instead of counting up to it
+        self.rounds = max(self.rounds, min(behind, default=0)) + 1
+        self._round_t_s = t_s
+        return True
 
     def _eigen_step(
         self,
@@ -351,6 +398,7 @@ class RigidityLayer:
                 targets=cand,
                 mv=_vecs(mv[1:, :, 0]),
                 form_grad_ned=_vecs(g_form[1:]),
+                round=self.rounds,
             )
         )
         if cfg.rigidity_eigen == "centralized":
@@ -390,7 +438,7 @@ class RigidityLayer:
             self.u_rigidity, self.w_rigidity = u, w
             return
         if self.loc.yaw_known:
-            if cfg.rigidity_maintenance and self.lambda_hat < g.lambda_safe:  # else no slope
+            if cfg.rigidity_maintenance and self.agreed and self.lambda_hat < g.lambda_safe:
                 du, dw = ctl.rigidity_control_body(
                     self.lambda_hat, self.grad_lambda_p, self.grad_lambda_yaw, self.yaw_hat, g
                 )

@@ -32,6 +32,7 @@ from messages.agent import (
     TargetMeasurement,
 )
 from messages.codec import Payload
+from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 from onboard.agent import AgentConfig, AgentCore
 from onboard.geometry import FloatArray, IntArray, bearings_body, rot_z
 from onboard.graph import edge_index, normalize_edges, reciprocal_pairs, sensing_graph
@@ -178,6 +179,19 @@ def _noisy_unit(b: FloatArray, sigma: float, rng: np.random.Generator) -> FloatA
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
+RIGIDITY_PAYLOADS = (AngleLocalizationShare, RigidityEigenShare)
+
+
+def _undirected(edges: IntArray, n: int) -> list[list[int]]:
+    """Each agent's neighbours over ``edges`` in either direction, in edge order."""
+    out: list[list[int]] = [[] for _ in range(n)]
+    for i, j in edges:
+        for a, b in ((int(i), int(j)), (int(j), int(i))):
+            if b not in out[a]:
+                out[a].append(b)
+    return out
+
+
 def run(
     configs: Sequence[AgentConfig],
     p0_ned: ArrayLike,
@@ -200,12 +214,15 @@ def run(
     loss_rng = random.Random(runner.seed)
     offsets = rng.uniform(-runner.yaw_offset_max_rad, runner.yaw_offset_max_rad, n).tolist()
 
-    comm: list[list[int]] = [[] for _ in range(n)]
-    for i, j in edges:
-        for a, b in ((int(i), int(j)), (int(j), int(i))):
-            if b not in comm[a]:
-                comm[a].append(b)
-    edge_rows = [np.flatnonzero(edges[:, 0] == i) for i in range(n)]
+    # the cameras see along the formation's edges and the rigidity layer's (AgentConfig)
+    extra = configs[0].rigidity_edges
+    sensed = normalize_edges([*configs[0].edges, *extra]) if extra else edges
+    comm = _undirected(edges, n)
+    # neighbours only the rigidity layer talks to get only its payloads (as a daemon subscribes)
+    comm_rigidity = [
+        [b for b in nb if b not in comm[a]] for a, nb in enumerate(_undirected(sensed, n))
+    ]
+    edge_rows = [np.flatnonzero(sensed[:, 0] == i) for i in range(n)]
 
     dt = runner.dt_s
     n_steps = round(runner.duration_s / dt)
@@ -235,7 +252,7 @@ def run(
     w_body = [0.0] * n
     frames: list[tuple[BearingMeasurement, ...]] = [()] * n
     extras: list[dict[str, tuple]] = [{} for _ in range(n)]
-    edge_row = edge_index(edges)
+    edge_row = edge_index(sensed)
     pending: dict[int, list[list[Payload]]] = {}
     noise_v = runner.velocity_noise_m_s
     noise_w = runner.yaw_rate_noise_rad_s
@@ -250,7 +267,7 @@ def run(
     for k in range(n_steps + 1):
         t = k * dt
         if k % frame_every == 0:
-            beta, _ = bearings_body(np.asarray(p), np.asarray(yaw), edges)
+            beta, _ = bearings_body(np.asarray(p), np.asarray(yaw), sensed)
             beta = _noisy_unit(beta, runner.bearing_noise_rad, rng)
             rows = beta.tolist()
             seen = None
@@ -259,7 +276,7 @@ def run(
                 seen = {edge_row[(int(a), int(b))] for a, b in fov_edges if (a, b) in edge_row}
             captured = [
                 tuple(
-                    BearingMeasurement(int(edges[e, 1]), tuple(rows[e]), t)
+                    BearingMeasurement(int(sensed[e, 1]), tuple(rows[e]), t)
                     for e in edge_rows[i]
                     if seen is None or e in seen
                 )
@@ -294,11 +311,15 @@ def run(
             setpoints.append(sp)
             if out:
                 target = pending.setdefault(k + 1 + lag, [[] for _ in range(n)])
-                for r in comm[i]:
+                rig_out = [m for m in out if isinstance(m, RIGIDITY_PAYLOADS)]
+                for r, msgs in [
+                    *((r, out) for r in comm[i]),
+                    *((r, rig_out) for r in comm_rigidity[i]),
+                ]:
                     if runner.loss > 0.0:
-                        target[r].extend(m for m in out if loss_rng.random() >= runner.loss)
+                        target[r].extend(m for m in msgs if loss_rng.random() >= runner.loss)
                     else:
-                        target[r].extend(out)
+                        target[r].extend(msgs)
         if k % runner.record_every == 0:
             _record(rec, r_idx, t, p, yaw, v_body, cores, pairs)
             if on_record is not None:

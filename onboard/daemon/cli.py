@@ -49,6 +49,7 @@ def agent(
     """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
     import msgspec
 
+    from messages.rigidity import RIGIDITY_KINDS
     from messages.sim import SimClock, clock_key
     from messages.transport import ZenohSettings, loopback_endpoint
     from onboard.autopilot import open_link
@@ -89,9 +90,15 @@ def agent(
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
     neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}
-    peers = PeerLink(
-        c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss
+    rigidity_only = (
+        {j for e in core_config.rigidity_edges for j in e if agent_id in e}
+        - neighbours
+        - {agent_id}
     )
+    peers = PeerLink(
+        c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss,
+        listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
+    )  # fmt: skip
     if c.clock == "sim":
         follower = SimClockFollower()
 

@@ -39,6 +39,20 @@
                                       # the peer messages received, at random
     config_file = ""                  # a full Zenoh JSON5 config (TLS...), overrides the above
 
+    [rigidity]                        # paper 003's layer on top of the mode (docs/demo.md)
+    maintenance = false               # rigidity maintenance + collision avoidance (eq. 19-31)
+    graph = "all"                     # whom a camera may see: "all" (the weights drop who is
+                                      # out of view or range) or "formation" (its edges only)
+    warmup_s = 5.0                    # no rigidity action for this long after the core starts,
+                                      # while angle localization and the eigen-estimate converge
+    eigen = "distributed"             # lambda from the distributed subspace iteration, or
+                                      # "centralized" (every agent's estimate, all-to-all)
+    fov_deg = 120.0                   # camera field of view and range of the sensing weights
+    range_m = 15.0
+    lambda_safe = 0.2                 # the maintenance action starts below this eigenvalue
+    lambda_min = 0.02                 # ... and grows without bound towards this one
+    r_safe_m = 1.5                    # collision avoidance starts inside this distance
+
     [camera]                          # bearings = "camera" (docs/vision.md)
     files = ["camera.toml"]           # camera rig: one camera file per camera_id, relative to
                                       # this file
@@ -58,6 +72,9 @@ from typing import Literal
 import msgspec
 
 from messages.formation import Formation, FormationError, load_formation
+from onboard.graph import complete_graph, formation_edges
+from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
+from onboard.rigidity.weights import SensingModel
 
 Mode = Literal["active", "random", "formation", "formation-active", "hold"]
 
@@ -93,6 +110,18 @@ class ZenohSection(msgspec.Struct, forbid_unknown_fields=True):
     inject_loss: float = 0.0
 
 
+class RigiditySection(msgspec.Struct, forbid_unknown_fields=True):
+    maintenance: bool = False
+    graph: Literal["all", "formation"] = "all"
+    warmup_s: float = 5.0
+    eigen: Literal["distributed", "centralized"] = "distributed"
+    fov_deg: float = 120.0
+    range_m: float = 15.0
+    lambda_safe: float = 0.2
+    lambda_min: float = 0.02
+    r_safe_m: float = 1.5
+
+
 class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
     files: list[str] = msgspec.field(default_factory=list)
     markers: str = ""
@@ -113,6 +142,7 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
     limits: Limits = msgspec.field(default_factory=Limits)
     mavlink: MavlinkSettings = msgspec.field(default_factory=MavlinkSettings)
     zenoh: ZenohSection = msgspec.field(default_factory=ZenohSection)
+    rigidity: RigiditySection = msgspec.field(default_factory=RigiditySection)
     camera: CameraSection = msgspec.field(default_factory=CameraSection)
 
 
@@ -177,6 +207,18 @@ def load_fleet(path: str | Path) -> Fleet:
         raise ConfigError(
             f"{path}: takeoff_alt_m: must be in [0.5, 100], got {config.takeoff_alt_m}"
         )
+    rig = config.rigidity
+    if not 0.0 < rig.fov_deg <= 360.0:
+        raise ConfigError(f"{path}: rigidity.fov_deg: must be in (0, 360], got {rig.fov_deg}")
+    if not rig.warmup_s >= 0.0:
+        raise ConfigError(f"{path}: rigidity.warmup_s: must be >= 0, got {rig.warmup_s}")
+    if not rig.range_m > 0.0 or not rig.r_safe_m > 0.0:
+        raise ConfigError(f"{path}: rigidity.range_m and rigidity.r_safe_m must be > 0")
+    if not 0.0 < rig.lambda_min < rig.lambda_safe:
+        raise ConfigError(
+            f"{path}: rigidity: need 0 < lambda_min < lambda_safe, got "
+            f"{rig.lambda_min} and {rig.lambda_safe}"
+        )
     cam = config.camera
     if config.bearings == "camera" and not (cam.files and cam.markers):
         raise ConfigError(f"{path}: bearings = 'camera' needs camera.files and camera.markers")
@@ -191,4 +233,28 @@ def load_fleet(path: str | Path) -> Fleet:
             f"{path}: formation: agent ids must be 0..{formation.n - 1} (vehicle indices), "
             f"got {formation.ids.tolist()}"
         )
+    if rig.maintenance:
+        lam = planned_rigidity_eigenvalue(formation, rig)
+        if not lam > rig.lambda_safe:
+            raise ConfigError(
+                f"{path}: rigidity: the planned formation's weighted angle rigidity eigenvalue is "
+                f"{lam:.3g}, not above rigidity.lambda_safe = {rig.lambda_safe:g}: the maintenance "
+                "would push the team away from the formation it is told to hold. Lower "
+                "lambda_safe (and lambda_min) below it, or plan a more rigid formation."
+            )
     return Fleet(config=config, formation=formation, path=str(path))
+
+
+def planned_rigidity_eigenvalue(formation: Formation, rigidity: RigiditySection) -> float:
+    """The weighted angle rigidity eigenvalue (paper 003 eq. 16-18) of the planned formation,
+    over the graph and camera the rigidity layer will use: the level its maintenance sees when
+    the team holds the formation."""
+    edges = complete_graph(formation.n) if rigidity.graph == "all" else formation_edges(formation)
+    model = SensingModel(rigidity.fov_deg, rigidity.range_m)
+    try:
+        lam, _ = weighted_angle_rigidity_eigenvalue(
+            formation.p_ned, formation.yaw_rad, edges, model
+        )
+    except ValueError:  # coincident agents
+        return 0.0
+    return float(lam)

@@ -40,7 +40,7 @@ from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.geometry import bearings_body
-from onboard.graph import formation_edges
+from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.bearing import ibr_r3s1
 
 log = logging.getLogger(__name__)
@@ -63,6 +63,7 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
     centroid (bearings carry no scale: the estimators must find it), never the simulator's truth.
     """
     f, c = fleet.formation, fleet.config
+    r = c.rigidity
     e = formation_edges(f)
     beta, _ = bearings_body(f.p_ned, f.yaw_rad, e)
     centroid = f.p_ned.mean(axis=0)
@@ -81,6 +82,20 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
         desired_yaw_rad=tuple(float(y) for y in f.yaw_rad),
         v_max_m_s=c.limits.max_speed_m_s,
         yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s,
+        rigidity_maintenance=r.maintenance,
+        rigidity_edges=(
+            tuple((int(i), int(j)) for i, j in complete_graph(f.n))
+            if r.maintenance and r.graph == "all"
+            else ()
+        ),
+        rigidity_warmup_s=r.warmup_s,
+        rigidity_eigen=r.eigen,
+        rigidity_scale_from_sfm=r.maintenance,
+        fov_deg=r.fov_deg,
+        range_m=r.range_m,
+        lambda_safe=r.lambda_safe,
+        lambda_min=r.lambda_min,
+        r_safe_m=r.r_safe_m,
     )
 
 

@@ -55,7 +55,9 @@ class DropCounter:
 class PeerLink:
     """Zenoh I/O of one agent (module docstring). ``known`` are the fleet's agent ids;
     ``listen_to`` the agents whose peer payloads it subscribes to (its graph neighbours; default
-    every other agent), so nobody decodes traffic it would drop anyway. ``inject_loss`` drops
+    every other agent), so nobody decodes traffic it would drop anyway; ``listen_kinds`` adds
+    single kinds of payload from further agents (``(agent, kind)``, e.g. the rigidity layer's
+    ``rigidity_eigen`` from agents outside the formation graph). ``inject_loss`` drops
     that fraction of the received peer samples at random (fault injection, counted as
     ``injected_loss``), seeded by the agent id."""
 
@@ -68,6 +70,7 @@ class PeerLink:
         drops: DropCounter,
         listen_to: Iterable[int] | None = None,
         inject_loss: float = 0.0,
+        listen_kinds: Iterable[tuple[int, str]] = (),
     ) -> None:
         if not 0.0 <= inject_loss < 1.0:
             raise ValueError(f"inject_loss must be in [0, 1), got {inject_loss}")
@@ -90,6 +93,12 @@ class PeerLink:
         for j in sorted(self.listen_to if listen_to is not None else self.known - {agent_id}):
             self._handles.append(
                 self.session.declare_subscriber(key(fleet, j, PEER_TOPIC) + "/**", self._on_peer)
+            )
+        for j, kind in sorted(set(listen_kinds)):
+            self._handles.append(
+                self.session.declare_subscriber(
+                    key(fleet, j, f"{PEER_TOPIC}/{kind}"), self._on_peer
+                )
             )
         self._handles.append(
             self.session.declare_subscriber(key(fleet, agent_id, COMMAND_TOPIC), self._on_command)

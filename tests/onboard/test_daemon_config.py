@@ -58,6 +58,12 @@ def test_defaults_and_urls(tmp_path):
             "rates.core must be >=",
         ),
         ('formation = "formation.toml"\nprior_scale = -1.0\n', "prior_scale"),
+        (
+            'formation = "formation.toml"\n[rigidity]\nlambda_min = 0.3\nlambda_safe = 0.2\n',
+            "lambda_min < lambda_safe",
+        ),
+        ('formation = "formation.toml"\n[rigidity]\nwarmup_s = -1.0\n', "rigidity.warmup_s"),
+        ('formation = "formation.toml"\n[rigidity]\ngraph = "some"\n', "rigidity.graph"),
     ],
 )
 def test_bad_fleet_files(tmp_path, fleet, needle):
@@ -85,3 +91,27 @@ def test_sim_clock_follower():
     clock.update(20.0, speedup=1.0, lockstep=True)
     time.sleep(0.02)
     assert clock.now() == 20.0  # lockstep: holds until the next step
+
+
+def test_rigidity_section_reaches_the_core_and_refuses_a_safe_level_above_the_plan(tmp_path):
+    from onboard.daemon.config import planned_rigidity_eigenvalue
+
+    fleet = load_fleet(
+        write(tmp_path, 'formation = "formation.toml"\n[rigidity]\nmaintenance = true\n'
+              'lambda_safe = 0.05\nlambda_min = 0.005\nfov_deg = 360.0\n')
+    )  # fmt: skip
+    cfg = agent_config(fleet, 0)
+    assert cfg.rigidity_maintenance and cfg.rigidity_scale_from_sfm
+    assert len(cfg.rigidity_edges) == 6 and cfg.lambda_safe == 0.05 and cfg.fov_deg == 360.0
+    lam = planned_rigidity_eigenvalue(fleet.formation, fleet.config.rigidity)
+    assert 0.05 < lam < 100.0
+    # a safe level above the planned formation's eigenvalue would fight the formation
+    with pytest.raises(ConfigError, match="lambda_safe") as info:
+        load_fleet(
+            write(tmp_path, 'formation = "formation.toml"\n[rigidity]\nmaintenance = true\n'
+                  f'lambda_safe = {2 * lam}\nlambda_min = 0.01\nfov_deg = 360.0\n')
+        )  # fmt: skip
+    assert f"{lam:.3g}" in str(info.value)
+    # off by default: the core has no rigidity layer
+    plain = agent_config(load_fleet(write(tmp_path, 'formation = "formation.toml"\n')), 0)
+    assert not plain.rigidity_maintenance and plain.rigidity_edges == ()

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 
 from messages.agent import BearingMeasurement, OwnMeasurements
@@ -111,3 +112,92 @@ def test_wrong_layout_is_malformed() -> None:
     assert not layers[0].receive(share.sender, short)
     loc = next(m for m in inbox[0] if isinstance(m, AngleLocalizationShare))
     assert layers[0].receive(loc.sender, loc)
+
+
+def _exchange_late(layers: list[RigidityLayer], ticks: int, lag: int) -> None:
+    """Every payload arrives ``lag`` ticks after it was sent (a 10 ms tick)."""
+    pending: dict[int, list[list]] = {}
+    for k in range(ticks):
+        t = 0.01 * k
+        inbox = pending.pop(k, [[] for _ in layers])
+        for i, layer in enumerate(layers):
+            for msg in inbox[i]:
+                assert layer.receive(msg.sender, msg)
+            out: list = []
+            layer.step(t, 0.01, _own(i, t), float(YAW[i]), (0.0, 0.0, 0.0), {}, k, out)
+            box = pending.setdefault(k + lag, [[] for _ in layers])
+            for r in range(N):
+                if r != i:
+                    box[r].extend(out)
+
+
+def test_late_messages_slow_the_rounds_but_not_the_estimate() -> None:
+    """Messages 4 ticks late: every round waits for the neighbours' previous one, so the
+    estimate converges to the same value (stepped at every tick on 4-round-old states it blew
+    up, the delayed-consensus limit ``k mu_max d < pi / 2``)."""
+    from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
+
+    layers = _layers()
+    _exchange_late(layers, 1000, lag=4)
+    lam = weighted_angle_rigidity_eigenvalue(P, YAW, complete_graph(N), layers[0].model)[0]
+    for layer in layers:
+        # one round per message trip (plus one per tick before the first messages arrive)
+        assert 240 <= layer.rounds <= 1000 // 4 + 4 + 1
+        assert abs(layer.lambda_hat - lam) < 0.02 * lam
+        assert layer.agreed
+
+
+def test_a_round_waits_for_every_candidate_then_times_out() -> None:
+    from onboard.rigidity_layer import ROUND_TIMEOUT_S
+
+    layers = _layers()
+    inbox = _exchange(layers, 3)  # everyone has taken 3 rounds
+    a = layers[0]
+    assert a.rounds == 3
+    for msg in inbox[0]:
+        a.receive(msg.sender, msg)
+    out: list = []
+    a.step(0.03, 0.01, _own(0, 0.03), float(YAW[0]), (0.0, 0.0, 0.0), {}, 3, out)
+    assert a.rounds == 4  # the neighbours' round 3 was there
+    out = []
+    a.step(0.04, 0.01, _own(0, 0.04), float(YAW[0]), (0.0, 0.0, 0.0), {}, 4, out)
+    assert a.rounds == 4 and not any(isinstance(m, RigidityEigenShare) for m in out)
+    t = 0.03 + ROUND_TIMEOUT_S + 0.01  # nobody answered: go on with what it has
+    a.step(t, 0.01, _own(0, t), float(YAW[0]), (0.0, 0.0, 0.0), {}, 5, out)
+    assert a.rounds == 5 and any(isinstance(m, RigidityEigenShare) for m in out)
+
+
+def test_a_restarted_agent_joins_at_its_neighbours_round() -> None:
+    layers = _layers()
+    inbox = _exchange(layers, 20)
+    fresh = _layers()[0]  # agent 0 restarted
+    for msg in inbox[0]:
+        fresh.receive(msg.sender, msg)
+    fresh.step(0.2, 0.01, _own(0, 0.2), float(YAW[0]), (0.0, 0.0, 0.0), {}, 0, [])
+    assert fresh.rounds == 21
+
+
+def test_maintenance_does_not_act_on_an_estimate_its_neighbours_disagree_with() -> None:
+    """One agent's estimate at 0 while the others' are not: the barrier would command
+    thousands of m/s; the layer waits for agreement instead."""
+    edges = tuple((int(i), int(j)) for i, j in complete_graph(N))
+    prior = tuple(tuple(float(x) for x in row) for row in P)
+    layers = []
+    for i in range(N):
+        cfg = AgentConfig(
+            agent_id=i, n_agents=N, edges=edges, mode="active", p_hat0_ned=prior,
+            rigidity_maintenance=True, lambda_safe=1.0, lambda_min=0.1,
+        )  # fmt: skip
+        others = [j for j in range(N) if j != i]
+        layers.append(RigidityLayer(cfg, others, others))
+    inbox = _exchange(layers, 150)
+    a = layers[0]
+    assert a.agreed and np.linalg.norm(a.u_rigidity) > 0.0  # below "safe": it acts
+    lam = a.lambda_hat
+    for msg in inbox[0]:
+        if isinstance(msg, RigidityEigenShare) and msg.sender == 1:  # neighbour 1 collapsed
+            msg = msgspec.structs.replace(msg, lambda_hat=0.0, stamp_s=1.5, round=a.rounds)
+        a.receive(msg.sender, msg)
+    a.step(1.5, 0.01, _own(0, 1.5), float(YAW[0]), (0.0, 0.0, 0.0), {}, 150, [])
+    assert a.lambda_hat > 0.5 * lam and not a.agreed
+    assert np.linalg.norm(a.u_rigidity) == 0.0  # collision avoidance: nobody within r_safe
