@@ -32,6 +32,7 @@ def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
         "d_hat m",
         "scale err %",
         "E",
+        "lambda",
         "nbrs",
         "alarms",
     ):
@@ -42,7 +43,7 @@ def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
     for agent_id in range(ev.plan.n):
         st = status.get(agent_id)
         if st is None:
-            table.add_row(str(agent_id), "[dim]starting[/dim]", *[""] * 8)
+            table.add_row(str(agent_id), "[dim]starting[/dim]", *[""] * 9)
             continue
         chis = st.agent.chi_hat_inv_m
         d_hat = ", ".join(f"{j}:{1 / c:.2f}" for j, c in sorted(chis.items()) if c > 0)
@@ -58,6 +59,7 @@ def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
             d_hat,
             err_txt,
             f"{st.agent.e_index:.1e}",
+            "" if (lam := st.agent.rigidity_eigenvalue) is None else f"{lam:.2f}",
             str(len(st.agent.neighbours)),
             ", ".join(st.alarms),
             style=style,

@@ -15,6 +15,7 @@ from __future__ import annotations
 import msgspec
 
 from messages.codec import Payload
+from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 
 Vec3 = tuple[float, float, float]
 
@@ -84,6 +85,13 @@ class ConsensusState(Payload, tag="peer.consensus"):
 
 
 PeerPayload = (
-    MotionShare | BearingShare | SfmEstimate | ExcitationTable | LocalizationState | ConsensusState
+    MotionShare
+    | BearingShare
+    | SfmEstimate
+    | ExcitationTable
+    | LocalizationState
+    | ConsensusState
+    | AngleLocalizationShare
+    | RigidityEigenShare
 )
 """Everything an agent core accepts in its inbox (decode with ``codec.decode(data, PeerPayload)``)."""

@@ -176,6 +176,10 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     eigen_k_n: float = 0.2
     """Distributed eigen-estimation (:class:`onboard.estimation.distributed_eigen.EigenGains`):
     vectors tracked, power step over the degree bound, per-round consensus gains."""
+    rigidity_period_s: float = 0.0
+    """The rigidity layer steps at most this often (0: every core step), integrating over the
+    time since its last step. It is a slow outer loop and costs several times the rest of the
+    core; the daemons' 6 x 100 Hz of it did not fit on two cores."""
     rigidity_warmup_s: float = 0.0
     """Seconds after the first step during which the rigidity layer's actions are zero, so
     angle localization and the eigen-estimate converge before the team moves."""
@@ -295,6 +299,7 @@ class AgentCore:
             d = np.random.default_rng(cfg.seed * 1000 + me + 500).standard_normal(3)
             self.u_cmd = tuple((speed * d / np.linalg.norm(d)).tolist())
         self._t: float | None = None
+        self._rigidity_t: float | None = None
         self._seq = 0
         self.dropped: dict[str, int] = {}
         self._neighbour_set = frozenset(self.neighbours)
@@ -451,9 +456,14 @@ class AgentCore:
                 )
             )
 
-        if self.rigidity is not None:
+        last = self._rigidity_t
+        if self.rigidity is not None and (
+            last is None or t_s - last >= cfg.rigidity_period_s - 1e-9
+        ):
             sfm_d = {j: 1.0 / c for j in self.reciprocal if (c := self.chi_hat(j)) and c > 0}
-            self.rigidity.step(t_s, dt, own, yaw_own, u_i, sfm_d, self._seq, outbox)
+            dt_r = dt if last is None else t_s - last
+            self.rigidity.step(t_s, dt_r, own, yaw_own, u_i, sfm_d, self._seq, outbox)
+            self._rigidity_t = t_s
         self._cons_out = ([], [], [])
         if self.paper000:
             self._localize(dt, t_s, u_i, w_i)

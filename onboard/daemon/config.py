@@ -43,6 +43,7 @@
     maintenance = false               # rigidity maintenance + collision avoidance (eq. 19-31)
     graph = "all"                     # whom a camera may see: "all" (the weights drop who is
                                       # out of view or range) or "formation" (its edges only)
+    rate_hz = 20.0                    # the layer's steps (a slow outer loop), <= rates.core
     warmup_s = 5.0                    # no rigidity action for this long after the core starts,
                                       # while angle localization and the eigen-estimate converge
     eigen = "distributed"             # lambda from the distributed subspace iteration, or
@@ -113,6 +114,7 @@ class ZenohSection(msgspec.Struct, forbid_unknown_fields=True):
 class RigiditySection(msgspec.Struct, forbid_unknown_fields=True):
     maintenance: bool = False
     graph: Literal["all", "formation"] = "all"
+    rate_hz: float = 20.0
     warmup_s: float = 5.0
     eigen: Literal["distributed", "centralized"] = "distributed"
     fov_deg: float = 120.0
@@ -210,6 +212,10 @@ def load_fleet(path: str | Path) -> Fleet:
     rig = config.rigidity
     if not 0.0 < rig.fov_deg <= 360.0:
         raise ConfigError(f"{path}: rigidity.fov_deg: must be in (0, 360], got {rig.fov_deg}")
+    if not 0.0 < rig.rate_hz <= config.rates.core:
+        raise ConfigError(
+            f"{path}: rigidity.rate_hz: must be in (0, rates.core], got {rig.rate_hz}"
+        )
     if not rig.warmup_s >= 0.0:
         raise ConfigError(f"{path}: rigidity.warmup_s: must be >= 0, got {rig.warmup_s}")
     if not rig.range_m > 0.0 or not rig.r_safe_m > 0.0:

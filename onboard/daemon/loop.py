@@ -89,6 +89,7 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
             else ()
         ),
         rigidity_warmup_s=r.warmup_s,
+        rigidity_period_s=1.0 / r.rate_hz,
         rigidity_eigen=r.eigen,
         rigidity_scale_from_sfm=r.maintenance,
         fov_deg=r.fov_deg,
