@@ -464,6 +464,8 @@ class AgentCore:
             dt_r = dt if last is None else t_s - last
             self.rigidity.step(t_s, dt_r, own, yaw_own, u_i, sfm_d, self._seq, outbox)
             self._rigidity_t = t_s
+        elif self.rigidity is not None:
+            self.rigidity.eigen_round(t_s, self._seq, outbox)
         self._cons_out = ([], [], [])
         if self.paper000:
             self._localize(dt, t_s, u_i, w_i)

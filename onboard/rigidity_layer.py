@@ -186,6 +186,8 @@ class RigidityLayer:
         self.w_rigidity = 0.0
         self._t0: float | None = None
         self._round_t_s = -math.inf
+        self._last_share: RigidityEigenShare | None = None
+        self._frozen: tuple[FloatArray, dict[int, FloatArray], list[int], st.Star] | None = None
         self.rounds = 0
         """Rounds of the distributed eigen-estimate taken so far."""
         self.agreed = False
@@ -287,12 +289,34 @@ class RigidityLayer:
             if ids == cand
             else st.restrict(whole, np.array([pos[j] for j in cand], dtype=np.int64))
         )
+        self._frozen = (p_own, p_est, cand, s_cand)
         if self._new_round(t_s, fresh, cand):
             self._eigen_step(t_s, p_own, p_est, fresh, cand, s_cand, seq, outbox)
+        elif self._last_share is not None:
+            # still waiting: send the last round again, so that a share lost on the way
+            # stalls the neighbours one step period instead of a whole round trip
+            outbox.append(self._last_share)
         self.agreed = self._agreement(fresh, cand)
 
         # 4. actions
         self._actions(own, t_s, p_own, p_est)
+
+    def eigen_round(self, t_s: float, seq: int, outbox: list[Payload]) -> None:
+        """Between two :meth:`step` calls: take an eigen-estimate round if every candidate's
+        share of the previous round is in, on the framework of the last step.
+
+        A round per message trip instead of per step: with the layer at 20 Hz and 30 ms of
+        latency, rounds waiting for the next step came 5-6 times a second and the estimates
+        spread by 15%."""
+        if self._frozen is None:
+            return
+        p_own, p_est, cand, s_cand = self._frozen
+        fresh = {j: m for j, m in self._eig_in.items() if self._fresh(m.stamp_s, t_s)}
+        if not all(j in fresh for j in cand):  # a candidate went quiet: wait for the next step
+            return
+        if self._new_round(t_s, fresh, cand):
+            self._eigen_step(t_s, p_own, p_est, fresh, cand, s_cand, seq, outbox)
+            self.agreed = self._agreement(fresh, cand)
 
     def _current_frame(
         self, own: OwnMeasurements, t_s: float, p_est: dict[int, FloatArray]
@@ -386,21 +410,20 @@ class RigidityLayer:
             _, _, g_form, g_form_yaw = st.form_gradient(s_cand, y[0], y[1:])
         eig.step(t_blocks[0], mv_i, s_i, nbrs)
         x, z = eig.share()
-        outbox.append(
-            RigidityEigenShare(
-                sender=self.id,
-                seq=seq,
-                stamp_s=t_s,
-                v=_vec(eig.v[:, 0]),
-                x=wire.pack(x, eig.degree, eig.s_bar, eig.v, mv[1:], s_parts[1:]),
-                z=z.tolist(),
-                lambda_hat=eig.lambda_hat,
-                targets=cand,
-                mv=_vecs(mv[1:, :, 0]),
-                form_grad_ned=_vecs(g_form[1:]),
-                round=self.rounds,
-            )
+        self._last_share = RigidityEigenShare(
+            sender=self.id,
+            seq=seq,
+            stamp_s=t_s,
+            v=_vec(eig.v[:, 0]),
+            x=wire.pack(x, eig.degree, eig.s_bar, eig.v, mv[1:], s_parts[1:]),
+            z=z.tolist(),
+            lambda_hat=eig.lambda_hat,
+            targets=cand,
+            mv=_vecs(mv[1:, :, 0]),
+            form_grad_ned=_vecs(g_form[1:]),
+            round=self.rounds,
         )
+        outbox.append(self._last_share)
         if cfg.rigidity_eigen == "centralized":
             self._centralized(p_own, t_s)
             return
