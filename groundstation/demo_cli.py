@@ -188,7 +188,7 @@ def demo(
         bool,
         typer.Option(
             help="Rigidity maintenance (paper 003): keep the sensing graph's weighted angle "
-            "rigidity eigenvalue above its safe level, and avoid collisions."
+            "rigidity eigenvalue above its safe level, and avoid collisions (sim bearings only)."
         ),
     ] = True,
     headless: Annotated[

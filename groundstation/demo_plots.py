@@ -28,8 +28,15 @@ def plot_demo(out: Path) -> list[Path]:
     axes[0].legend(loc="upper right", fontsize=8)
     axes[1].plot(t, d["bearing_error_deg"])
     axes[1].set_ylabel("formation bearing error (deg)")
-    axes[2].semilogy(t, np.maximum(d["rigidity_eigenvalue"], 1e-12))
+    axes[2].semilogy(
+        t, np.maximum(d["rigidity_eigenvalue"], 1e-12), "k", label="bearing (R^3 x S^1, truth)"
+    )
+    if "angle_eigenvalue" in d and np.isfinite(d["angle_eigenvalue_hat"]).any():
+        axes[2].semilogy(t, d["angle_eigenvalue"], "b", lw=2, label="weighted angle (truth)")
+        axes[2].semilogy(t, d["angle_eigenvalue_hat"], "c", lw=0.7, alpha=0.7)
+        axes[2].plot([], [], "c", label="weighted angle (each agent's estimate)")
     axes[2].set_ylabel("rigidity eigenvalue")
+    axes[2].legend(loc="lower right", fontsize=8)
     axes[2].set_xlabel("simulation time (s)")
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)

@@ -149,7 +149,8 @@ class AgentDaemon:
         self._landing = threading.Event()
         self._actions: queue.Queue[tuple[str, FleetCommand | None]] = queue.Queue()
         self._graph_ids = sorted({int(x) for e in self.core.config.edges for x in e})
-        self._neighbours = frozenset(self.core.neighbours)
+        # the formation's neighbours, and those only the rigidity layer talks to
+        self._neighbours = frozenset(self.core.neighbours) | self.core.rigidity_neighbours
         self._last_core_t: float | None = None
         self._seen: set[int] = set()
         self._lost_since: dict[int, float] = {}
