@@ -32,6 +32,7 @@ from messages.command import COMMAND_TOPIC, FleetCommand
 from messages.keys import key
 from messages.sim import Truth
 from messages.transport import ZenohSettings, loopback_endpoint, open_session
+from onboard.daemon.config import MIN_MAINTENANCE_AGENTS
 from onboard.geometry import FloatArray, IntArray, bearings_body
 from onboard.graph import complete_graph, normalize_edges, reciprocal_pairs
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
@@ -424,7 +425,8 @@ def run_demo(
     fleet = f"demo{base}"
     # the rigidity layer's sensing model is one camera cone; rendered rigs (a forward camera or
     # a ring of them) are not modelled yet, so camera bearings fly without the maintenance
-    rigidity = rigidity and bearings == "sim"
+    # and it needs 4 vehicles or more (onboard.daemon.config.MIN_MAINTENANCE_AGENTS)
+    rigidity = rigidity and bearings == "sim" and vehicles >= MIN_MAINTENANCE_AGENTS
     fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity)
     if bearings == "camera":
         stale_s = max(0.5, CAMERA_STALE_FRAMES / render_rate_hz)

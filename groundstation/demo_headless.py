@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from groundstation.demo import SCALE_TOLERANCE, DemoPorts, plan_formation, write_demo_files
-from onboard.daemon.config import load_fleet
+from onboard.daemon.config import MIN_MAINTENANCE_AGENTS, load_fleet
 from onboard.daemon.loop import agent_config
 from onboard.geometry import bearings_body
 from onboard.rigidity.bearing import ibr_r3s1
@@ -54,7 +54,14 @@ def headless_demo(
     with tempfile.TemporaryDirectory() as tmp:
         ports = DemoPorts(zenoh=7447, mavlink=14540, gcs=14550)  # written, never opened
         fleet = load_fleet(
-            write_demo_files(Path(tmp), plan, ports, "headless", mode, rigidity=rigidity)
+            write_demo_files(
+                Path(tmp),
+                plan,
+                ports,
+                "headless",
+                mode,
+                rigidity=rigidity and vehicles >= MIN_MAINTENANCE_AGENTS,
+            )
         )
         configs = [agent_config(fleet, i) for i in range(vehicles)]
     runner = RunnerConfig(

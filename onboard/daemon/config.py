@@ -80,6 +80,10 @@ from onboard.rigidity.weights import SensingModel
 Mode = Literal["active", "random", "formation", "formation-active", "hold"]
 
 
+MIN_MAINTENANCE_AGENTS = 4
+"""Rigidity maintenance needs this many agents (:func:`load_fleet`)."""
+
+
 class ConfigError(ValueError):
     """An invalid fleet configuration; the message names the problem and its place."""
 
@@ -238,6 +242,13 @@ def load_fleet(path: str | Path) -> Fleet:
         raise ConfigError(
             f"{path}: formation: agent ids must be 0..{formation.n - 1} (vehicle indices), "
             f"got {formation.ids.tolist()}"
+        )
+    if rig.maintenance and formation.n < MIN_MAINTENANCE_AGENTS:
+        raise ConfigError(
+            f"{path}: rigidity.maintenance needs at least {MIN_MAINTENANCE_AGENTS} agents, the "
+            f"formation has {formation.n}: with 3 the weighted angle rigidity matrix has only 2 "
+            "non-trivial modes, next to its largest eigenvalue, and the distributed estimate "
+            "cannot tell them from the trivial motions (it reads 0)"
         )
     if rig.maintenance:
         lam = planned_rigidity_eigenvalue(formation, rig)

@@ -93,25 +93,41 @@ def test_sim_clock_follower():
     assert clock.now() == 20.0  # lockstep: holds until the next step
 
 
+FORMATION4 = (
+    FORMATION
+    + """
+[[agent]]
+id = 3
+position_ned = [2.0, -3.0, -7.5]
+yaw_deg = 90.0
+"""
+)
+
+
 def test_rigidity_section_reaches_the_core_and_refuses_a_safe_level_above_the_plan(tmp_path):
     from onboard.daemon.config import planned_rigidity_eigenvalue
 
+    rig = "[rigidity]\nmaintenance = true\nfov_deg = 360.0\n"
     fleet = load_fleet(
-        write(tmp_path, 'formation = "formation.toml"\n[rigidity]\nmaintenance = true\n'
-              'lambda_safe = 0.05\nlambda_min = 0.005\nfov_deg = 360.0\n')
+        write(tmp_path, f'formation = "formation.toml"\n{rig}lambda_safe = 0.05\n'
+              'lambda_min = 0.005\n', FORMATION4)
     )  # fmt: skip
     cfg = agent_config(fleet, 0)
     assert cfg.rigidity_maintenance and cfg.rigidity_scale_from_sfm
-    assert len(cfg.rigidity_edges) == 6 and cfg.lambda_safe == 0.05 and cfg.fov_deg == 360.0
+    assert len(cfg.rigidity_edges) == 12 and cfg.lambda_safe == 0.05 and cfg.fov_deg == 360.0
+    assert cfg.rigidity_period_s == 1.0 / 20.0
     lam = planned_rigidity_eigenvalue(fleet.formation, fleet.config.rigidity)
     assert 0.05 < lam < 100.0
     # a safe level above the planned formation's eigenvalue would fight the formation
     with pytest.raises(ConfigError, match="lambda_safe") as info:
         load_fleet(
-            write(tmp_path, 'formation = "formation.toml"\n[rigidity]\nmaintenance = true\n'
-                  f'lambda_safe = {2 * lam}\nlambda_min = 0.01\nfov_deg = 360.0\n')
+            write(tmp_path, f'formation = "formation.toml"\n{rig}lambda_safe = {2 * lam}\n'
+                  'lambda_min = 0.01\n', FORMATION4)
         )  # fmt: skip
     assert f"{lam:.3g}" in str(info.value)
+    # three agents: the distributed estimate cannot work (docs/demo.md)
+    with pytest.raises(ConfigError, match="at least 4 agents"):
+        load_fleet(write(tmp_path, f'formation = "formation.toml"\n{rig}'))
     # off by default: the core has no rigidity layer
     plain = agent_config(load_fleet(write(tmp_path, 'formation = "formation.toml"\n')), 0)
     assert not plain.rigidity_maintenance and plain.rigidity_edges == ()
