@@ -152,7 +152,8 @@ def write_demo_files(
 ) -> Path:
     """Formation, start layout and fleet files for the simulator and the daemons; ``loss`` is
     the fraction of peer messages every daemon drops on purpose (``zenoh.inject_loss``),
-    ``rigidity`` turns paper 003's rigidity maintenance on (``[rigidity] maintenance``)."""
+    ``rigidity`` turns paper 003's rigidity maintenance on (``[rigidity] maintenance``; never
+    for fewer than 4 vehicles, see ``onboard.daemon.config.MIN_MAINTENANCE_AGENTS``)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "formation.toml").write_text(
         _formation_toml(plan.p_ned, plan.yaw_rad, plan.edges, "demo")
@@ -161,6 +162,7 @@ def write_demo_files(
         _formation_toml(plan.p_start_ned, plan.yaw_start_rad, None, "demo-start")
     )
     fleet_path = out / "fleet.toml"
+    rigidity = rigidity and len(plan.p_ned) >= MIN_MAINTENANCE_AGENTS  # load_fleet refuses 3
     lam_safe = demo_lambda_safe(plan)
     fleet_path.write_text(
         "\n".join(
@@ -425,8 +427,7 @@ def run_demo(
     fleet = f"demo{base}"
     # the rigidity layer's sensing model is one camera cone; rendered rigs (a forward camera or
     # a ring of them) are not modelled yet, so camera bearings fly without the maintenance
-    # and it needs 4 vehicles or more (onboard.daemon.config.MIN_MAINTENANCE_AGENTS)
-    rigidity = rigidity and bearings == "sim" and vehicles >= MIN_MAINTENANCE_AGENTS
+    rigidity = rigidity and bearings == "sim"
     fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity)
     if bearings == "camera":
         stale_s = max(0.5, CAMERA_STALE_FRAMES / render_rate_hz)

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from groundstation.demo import SCALE_TOLERANCE, DemoPorts, plan_formation, write_demo_files
-from onboard.daemon.config import MIN_MAINTENANCE_AGENTS, load_fleet
+from onboard.daemon.config import load_fleet
 from onboard.daemon.loop import agent_config
 from onboard.geometry import bearings_body
 from onboard.rigidity.bearing import ibr_r3s1
@@ -60,7 +60,7 @@ def headless_demo(
                 ports,
                 "headless",
                 mode,
-                rigidity=rigidity and vehicles >= MIN_MAINTENANCE_AGENTS,
+                rigidity=rigidity,
             )
         )
         configs = [agent_config(fleet, i) for i in range(vehicles)]
