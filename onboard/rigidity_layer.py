@@ -60,8 +60,8 @@ EIGEN_AGREEMENT = 0.5
 """The maintenance acts only while the neighbours' eigenvalue estimates lie within this fraction
 of ``lambda_safe`` of the own one (:meth:`RigidityLayer._agreement`)."""
 ROUND_TIMEOUT_S = 0.3
-"""The eigen-estimate takes its next round once every candidate's share is newer than the one
-its last round used, or after this long (a lost message must not stall it)."""
+"""The eigen-estimate takes its next round once every candidate's share of its previous round
+is in, or after this long (a neighbour that went quiet must not stall it)."""
 
 
 def _vec(a: FloatArray) -> Vec3:
