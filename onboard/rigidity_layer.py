@@ -410,20 +410,27 @@ class RigidityLayer:
             _, _, g_form, g_form_yaw = st.form_gradient(s_cand, y[0], y[1:])
         eig.step(t_blocks[0], mv_i, s_i, nbrs)
         x, z = eig.share()
-        self._last_share = RigidityEigenShare(
-            sender=self.id,
-            seq=seq,
-            stamp_s=t_s,
-            v=_vec(eig.v[:, 0]),
-            x=wire.pack(x, eig.degree, eig.s_bar, eig.v, mv[1:], s_parts[1:]),
-            z=z.tolist(),
-            lambda_hat=eig.lambda_hat,
-            targets=cand,
-            mv=_vecs(mv[1:, :, 0]),
-            form_grad_ned=_vecs(g_form[1:]),
-            round=self.rounds,
+        # after a restart (the estimator diverged) there is no consensus state to send until
+        # its next round: an empty one was counted as malformed by every neighbour
+        self._last_share = (
+            None
+            if len(x) == 0
+            else RigidityEigenShare(
+                sender=self.id,
+                seq=seq,
+                stamp_s=t_s,
+                v=_vec(eig.v[:, 0]),
+                x=wire.pack(x, eig.degree, eig.s_bar, eig.v, mv[1:], s_parts[1:]),
+                z=z.tolist(),
+                lambda_hat=eig.lambda_hat,
+                targets=cand,
+                mv=_vecs(mv[1:, :, 0]),
+                form_grad_ned=_vecs(g_form[1:]),
+                round=self.rounds,
+            )
         )
-        outbox.append(self._last_share)
+        if self._last_share is not None:
+            outbox.append(self._last_share)
         if cfg.rigidity_eigen == "centralized":
             self._centralized(p_own, t_s)
             return

@@ -202,3 +202,24 @@ def test_maintenance_does_not_act_on_an_estimate_its_neighbours_disagree_with() 
     a.step(1.5, 0.01, _own(0, 1.5), float(YAW[0]), (0.0, 0.0, 0.0), {}, 150, [])
     assert a.lambda_hat > 0.5 * lam and not a.agreed
     assert np.linalg.norm(a.u_rigidity) == 0.0  # collision avoidance: nobody within r_safe
+
+
+def test_a_restarted_estimator_sends_nothing_until_it_has_a_state() -> None:
+    """The divergence guard restarts the iteration and drops its consensus state; the share of
+    that round used to carry an empty state, which every neighbour counted as malformed."""
+    layers = _layers()
+    inbox = _exchange(layers, 5)
+    a = layers[0]
+    for msg in inbox[0]:
+        assert a.receive(msg.sender, msg)
+    a.eigen.v = np.full_like(a.eigen.v, 1e30)  # diverged
+    out: list = []
+    a.step(0.05, 0.01, _own(0, 0.05), float(YAW[0]), (0.0, 0.0, 0.0), {}, 5, out)
+    assert a.eigen.restarts == 1
+    assert not any(isinstance(m, RigidityEigenShare) for m in out)
+    out = []
+    t = 0.05 + 0.31  # nobody has its round: it times out, then shares a whole state again
+    a.step(t, 0.01, _own(0, t), float(YAW[0]), (0.0, 0.0, 0.0), {}, 6, out)
+    shares = [m for m in out if isinstance(m, RigidityEigenShare)]
+    assert len(shares) == 1 and len(shares[0].x) == a.wire.length(len(shares[0].targets))
+    assert layers[1].receive(0, shares[0])
