@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from onboard.estimation.relative_yaw import RelativeYawEdge, is_usable_pair, yaw_offset
-from onboard.geometry import bearings_body
+from onboard.geometry import bearings_body, relative_yaw
 
 
 def _pair(p, yaw):
@@ -27,6 +27,17 @@ def test_offset_is_exact_for_random_configurations():
         o = yaw_offset(b_ij, b_ji, yaw[0] + off[0], yaw[1] + off[1])
         psi = math.remainder(yaw[1] + off[1] - yaw[0] - off[0] + o, math.tau)
         assert math.remainder(psi - (yaw[1] - yaw[0]), math.tau) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_scalar_offset_matches_the_geometry_function():
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        b = rng.normal(size=(2, 3))
+        b_ij, b_ji = (tuple(v / np.linalg.norm(v)) for v in b)
+        yaw_i, yaw_j = rng.uniform(-math.pi, math.pi, 2)
+        psi = float(relative_yaw(np.array(b_ij), np.array(b_ji)))
+        expected = math.remainder(psi - (yaw_j - yaw_i), math.tau)
+        assert yaw_offset(b_ij, b_ji, yaw_i, yaw_j) == pytest.approx(expected, abs=1e-14)
 
 
 @pytest.mark.parametrize("peer_first", [False, True])
