@@ -117,6 +117,8 @@ class CameraModel:
     def distort(self, xy_norm: ArrayLike) -> FloatArray:
         """Apply lens distortion to normalized coordinates ``(..., 2)``."""
         xy = np.asarray(xy_norm, dtype=float)
+        if not any(self.dist):  # a pinhole (the rendered cameras): the formula is the identity
+            return xy.copy()
         k1, k2, p1, p2, k3 = self.dist
         x, y = xy[..., 0], xy[..., 1]
         r2 = x * x + y * y
