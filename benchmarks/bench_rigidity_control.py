@@ -114,7 +114,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration", type=float, default=1.5, help="simulated seconds per timing run")
     ap.add_argument("--columns", default="3,1", help="vectors per agent for the rounds study")
-    ap.add_argument("--max-rounds", type=int, default=4000)
+    ap.add_argument("--max-rounds", type=int, default=8000)
     args = ap.parse_args()
     print("per-agent step (agent 0), median over the run after 10 steps")
     for n in (10, 30):
