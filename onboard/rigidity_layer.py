@@ -116,13 +116,16 @@ class EigenWire:
         if not msgs:
             return Neighbours.none(n_c), np.zeros((0, 3, k))
         head = n_c + 2 + 3 * (k - 1)
-        rows = np.array([[*m.x[:head], *m.v] for m in msgs])
+        # one conversion: [consensus x | degree | sbar | V columns 1.. | V column 0 | z]
+        rows = np.array([[*m.x[:head], *m.v, *m.z] for m in msgs], dtype=float)
         v = np.concatenate(
-            (rows[:, head:, None], rows[:, n_c + 2 : head].reshape(len(msgs), 3, k - 1)), axis=2
+            (
+                rows[:, head : head + 3, None],
+                rows[:, n_c + 2 : head].reshape(len(msgs), 3, k - 1),
+            ),
+            axis=2,
         )
-        nb = Neighbours(
-            rows[:, :n_c], np.array([m.z for m in msgs]), rows[:, n_c], rows[:, n_c + 1]
-        )
+        nb = Neighbours(rows[:, :n_c], rows[:, head + 3 :], rows[:, n_c], rows[:, n_c + 1])
         return nb, v
 
     def addressed_to(
@@ -231,27 +234,22 @@ class RigidityLayer:
     ) -> None:
         """Advance estimators and compute the actions (read them from the attributes)."""
         cfg = self.cfg
-        p_est = {
-            j: np.asarray(m.p_hat_ned, dtype=float)
-            for j, m in self._loc_in.items()
-            if self._fresh(m.stamp_s, t_s)
-        }
-        frame = self._current_frame(own, t_s, p_est)
-        self.seen = [j for j, _ in frame]
-        beta = np.array([b for _, b in frame]).reshape(-1, 3)
+        live = [(j, m.p_hat_ned) for j, m in self._loc_in.items() if self._fresh(m.stamp_s, t_s)]
+        p_all = np.array([p for _, p in live], dtype=float).reshape(-1, 3)  # one conversion
+        p_est = {j: p_all[r] for r, (j, _) in enumerate(live)}
+        self.seen, beta = self._current_frame(own, t_s, p_est)
         fresh = {j: m for j, m in self._eig_in.items() if self._fresh(m.stamp_s, t_s)}
         cand = [j for j in self.candidates if j in p_est and j in fresh]
 
         # 1. yaw in the estimated frame; one star over everyone seen or a candidate
         loc = self.loc
+        row = {j: r for r, (j, _) in enumerate(live)}
         if self.seen:
-            loc.update_yaw(yaw_odometry_rad, beta, np.array([p_est[j] for j in self.seen]))
+            loc.update_yaw(yaw_odometry_rad, beta, p_all[[row[j] for j in self.seen]])
         self.yaw_hat = loc.yaw_hat(yaw_odometry_rad)
         p_own = loc.p_hat_ned.copy()
         ids = sorted(set(self.seen) | set(cand))
-        whole = st.star(
-            p_own, self.yaw_hat, np.array([p_est[j] for j in ids]).reshape(-1, 3), self.model
-        )
+        whole = st.star(p_own, self.yaw_hat, p_all[[row[j] for j in ids]], self.model)
         pos = {j: m for m, j in enumerate(ids)}
 
         # 2. angle localization (eq. 10-11)
@@ -262,10 +260,13 @@ class RigidityLayer:
         )
         g_loc = st.angle_gradient(s_seen, beta, cfg.k_angle_loc)[1]
         g_loc += st.vertical_gradient(s_seen, beta, cfg.k_vertical_loc)[1]
-        grad = g_loc[0].copy()
-        for j, msg in self._loc_in.items():
-            if j in p_est and self.id in msg.targets:
-                grad += msg.grad_ned[msg.targets.index(self.id)]
+        # the own block plus what the neighbours sent, summed in order (one conversion)
+        sent = [
+            msg.grad_ned[msg.targets.index(self.id)]
+            for j, msg in self._loc_in.items()
+            if j in p_est and self.id in msg.targets
+        ]
+        grad = np.concatenate((g_loc[:1], np.array(sent, dtype=float).reshape(-1, 3))).sum(axis=0)
         for j, d in self._distances(own, t_s, sfm_distances).items():
             if j in p_est:
                 grad += distance_gradient(p_own, p_est[j], d, cfg.k_distance_loc)[1]
@@ -299,7 +300,7 @@ class RigidityLayer:
         self.agreed = self._agreement(fresh, cand)
 
         # 4. actions
-        self._actions(own, t_s, p_own, p_est)
+        self._actions(own, t_s, p_own, p_all)
 
     def eigen_round(self, t_s: float, seq: int, outbox: list[Payload]) -> None:
         """Between two :meth:`step` calls: take an eigen-estimate round if every candidate's
@@ -320,19 +321,24 @@ class RigidityLayer:
 
     def _current_frame(
         self, own: OwnMeasurements, t_s: float, p_est: dict[int, FloatArray]
-    ) -> list[tuple[int, FloatArray]]:
-        kept = [
-            (b.target, b.beta_body)
-            for b in own.bearings
-            if b.target in p_est and t_s - b.stamp_s <= FRAME_MAX_AGE_S and len(b.beta_body) == 3
-        ]
+    ) -> tuple[list[int], FloatArray]:
+        """The targets of the current frame's bearings, ascending, and the bearings ``(M, 3)``."""
+        kept = sorted(
+            (
+                (b.target, b.beta_body)
+                for b in own.bearings
+                if b.target in p_est
+                and t_s - b.stamp_s <= FRAME_MAX_AGE_S
+                and len(b.beta_body) == 3
+            ),
+            key=lambda x: x[0],
+        )
         if not kept:
-            return []
+            return [], np.zeros((0, 3))
         beta = np.array([bb for _, bb in kept], dtype=float)
         norm2 = np.einsum("md,md->m", beta, beta)
-        ok = np.isfinite(norm2) & (np.abs(norm2 - 1.0) <= 1e-3)  # finite unit vectors only
-        frame = [(j, beta[m]) for m, (j, _) in enumerate(kept) if ok[m]]
-        return sorted(frame, key=lambda x: x[0])
+        ok = np.abs(norm2 - 1.0) <= 1e-3  # finite unit vectors only (nan and inf compare false)
+        return [j for (j, _), good in zip(kept, ok.tolist(), strict=True) if good], beta[ok]
 
     def _distances(
         self, own: OwnMeasurements, t_s: float, sfm_distances: dict[int, float]
@@ -394,20 +400,23 @@ class RigidityLayer:
         wire = self.wire
         msgs = list(fresh.values())
         nbrs, v_all = wire.unpack(msgs)
-        row = {j: r for r, j in enumerate(fresh)}
-        v_cand = v_all[[row[j] for j in cand]]
+        if cand == list(fresh):  # every sender is a candidate, in the same order
+            v_cand = v_all
+        else:
+            row = {j: r for r, j in enumerate(fresh)}
+            v_cand = v_all[[row[j] for j in cand]]
         mv = st.weighted_matvec(s_cand, eig.v, v_cand)
         s_parts = st.weighted_degree(s_cand)
         mv_in, s_in, form_in = wire.addressed_to(msgs, self.id)
         mv_i = mv[0] + mv_in
         s_i = float(s_parts[0]) + s_in
         # the Ritz vector's blocks with this agent's view of the Ritz problem (previous round)
-        t_blocks = trivial_motion_blocks(np.vstack([p_own, *[p_est[j] for j in cand]]))
+        t_blocks = trivial_motion_blocks(np.array([p_own, *[p_est[j] for j in cand]]))
         y = eig.ritz_blocks(np.concatenate([eig.v[None], v_cand]), t_blocks)
         if y is None:
             g_form, g_form_yaw = np.zeros((len(cand) + 1, 3)), 0.0
         else:
-            _, _, g_form, g_form_yaw = st.form_gradient(s_cand, y[0], y[1:])
+            g_form, g_form_yaw = st.form_gradient_only(s_cand, y[0], y[1:])
         eig.step(t_blocks[0], mv_i, s_i, nbrs)
         x, z = eig.share()
         # after a restart (the estimator diverged) there is no consensus state to send until
@@ -456,8 +465,10 @@ class RigidityLayer:
         self.grad_lambda_yaw = float(gy[me])
 
     def _actions(
-        self, own: OwnMeasurements, t_s: float, p_own: FloatArray, p_est: dict[int, FloatArray]
+        self, own: OwnMeasurements, t_s: float, p_own: FloatArray, others: FloatArray
     ) -> None:
+        """Rigidity, collision and tracking actions; ``others`` ``(K, 3)``: the fresh
+        neighbour estimates."""
         cfg = self.cfg
         g = self.gains
         u = np.zeros(3)
@@ -474,10 +485,10 @@ class RigidityLayer:
                 )
                 u += du
                 w += dw
-            others = np.array(list(p_est.values())).reshape(-1, 3)
             if len(others):
                 _, gc = ctl.collision_potential(p_own, others, g)
-                u += ctl.world_to_body_control(gc, 0.0, self.yaw_hat)[0]
+                if gc.any():  # nobody within r_safe: a zero push, in any frame
+                    u += ctl.world_to_body_control(gc, 0.0, self.yaw_hat)[0]
         for tm in own.targets:
             beta = np.asarray(tm.beta_body, dtype=float)
             if (

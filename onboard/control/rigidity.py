@@ -117,11 +117,11 @@ def collision_potential(
     """
     p_i = np.asarray(p_i_ned, dtype=float)
     r = np.asarray(p_others_ned, dtype=float).reshape(-1, 3) - p_i
-    d = np.linalg.norm(r, axis=1)
-    if np.any(d == 0.0):
+    d = np.sqrt((r * r).sum(axis=1))  # row norms
+    if (d == 0.0).any():
         raise ValueError("coincident positions: collision potential undefined")
     near = d < gains.r_safe_m
-    if not np.any(near):
+    if not near.any():
         return 0.0, np.zeros(3)
     v, s = rational_barrier(d[near], gains.r_coll_m, gains.r_safe_m, gains.k_collision)
     grad = -np.sum(s[:, None] * r[near] / d[near, None], axis=0)

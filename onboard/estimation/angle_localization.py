@@ -160,8 +160,8 @@ def yaw_from_bearings(beta_body: ArrayLike, b_hat_ned: ArrayLike) -> float | Non
     """
     beta = np.asarray(beta_body, dtype=float).reshape(-1, 3)
     b = np.asarray(b_hat_ned, dtype=float).reshape(-1, 3)
-    s = float(np.sum(beta[:, 0] * b[:, 1] - beta[:, 1] * b[:, 0]))
-    c = float(np.sum(beta[:, 0] * b[:, 0] + beta[:, 1] * b[:, 1]))
+    s = float((beta[:, 0] * b[:, 1] - beta[:, 1] * b[:, 0]).sum())
+    c = float((beta[:, 0] * b[:, 0] + beta[:, 1] * b[:, 1]).sum())
     if math.hypot(s, c) < 1e-3:
         return None
     return math.atan2(s, c)
@@ -189,8 +189,8 @@ class AngleLocalizer:
     ) -> None:
         """Re-read the yaw offset from the current bearings and neighbour estimates."""
         r = np.asarray(p_seen_ned, dtype=float).reshape(-1, 3) - self.p_hat_ned
-        n = np.linalg.norm(r, axis=1, keepdims=True)
-        if len(r) == 0 or np.any(n == 0.0):
+        n = np.sqrt((r * r).sum(axis=1, keepdims=True))  # row norms
+        if len(r) == 0 or (n == 0.0).any():
             return
         psi = yaw_from_bearings(beta_body, r / n)
         if psi is None:
@@ -208,5 +208,5 @@ class AngleLocalizer:
         if not self.yaw_known:
             v_ned = np.zeros(3)
         p_new = self.p_hat_ned + dt * (v_ned - np.asarray(grad_ned, dtype=float))
-        if np.all(np.isfinite(p_new)):  # a non-finite input leaves the estimate as it was
+        if np.isfinite(p_new).all():  # a non-finite input leaves the estimate as it was
             self.p_hat_ned = p_new

@@ -87,15 +87,23 @@ def trivial_motion_block(p_ned: ArrayLike) -> FloatArray:
 def trivial_motion_blocks(p_ned: ArrayLike) -> FloatArray:
     """:func:`trivial_motion_block` of every row of ``p_ned`` ``(K, 3)``: ``(K, 3, 7)``."""
     p = np.asarray(p_ned, dtype=float).reshape(-1, 3)
-    out = np.zeros((len(p), 3, N_TRIVIAL))
-    out[:, [0, 1, 2], [0, 1, 2]] = 1.0
-    x, y, z = p.T
-    # -hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]
-    out[:, 0, 4], out[:, 0, 5] = z, -y
-    out[:, 1, 3], out[:, 1, 5] = -z, x
-    out[:, 2, 3], out[:, 2, 4] = y, -x
-    out[:, :, 6] = p
-    return out
+    # entries 0, 1, x, y, z, -x, -y, -z of each row, placed by _T_LAYOUT:
+    # [I_3 | -hat(p) | p] with -hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]
+    values = np.zeros((len(p), 8))
+    values[:, 1] = 1.0
+    values[:, 2:5] = p
+    values[:, 5:] = -p
+    return values[:, _T_LAYOUT]
+
+
+_T_LAYOUT = np.array(
+    [
+        [1, 0, 0, 0, 4, 6, 2],
+        [0, 1, 0, 7, 0, 2, 3],
+        [0, 0, 1, 3, 5, 0, 4],
+    ]
+)
+"""Where :func:`trivial_motion_blocks` reads each entry of ``T_i`` from ``(0, 1, p, -p)``."""
 
 
 def trivial_motion_basis(p_ned: ArrayLike) -> FloatArray:
@@ -116,12 +124,27 @@ def _triu(k: int) -> tuple[IntArray, IntArray, IntArray]:
     return r, c, c * k + r
 
 
+@cache
+def _sym_index(k: int) -> IntArray:
+    """``(k, k)`` positions in the packed upper triangle of every entry of the symmetric matrix."""
+    r, c, _ = _triu(k)
+    out = np.zeros((k, k), dtype=np.int64)
+    out[r, c] = np.arange(len(r))
+    out[c, r] = np.arange(len(r))
+    return out
+
+
 def _sym(triu: FloatArray, k: int) -> FloatArray:
-    r, c, mirror = _triu(k)
-    out = np.zeros(k * k)
-    out[r * k + c] = triu
-    out[mirror] = triu
-    return out.reshape(k, k)
+    """The symmetric ``(k, k)`` matrix from its packed upper triangle (row-major)."""
+    return triu[_sym_index(k)]
+
+
+@cache
+def _eye(k: int) -> FloatArray:
+    """``I_k`` (read-only, shared by every round)."""
+    eye = np.eye(k)
+    eye.flags.writeable = False
+    return eye
 
 
 def consensus_input(t_i: FloatArray, v_i: FloatArray, mv_i: FloatArray) -> FloatArray:
@@ -168,7 +191,7 @@ def ritz(avg: Averages) -> tuple[FloatArray, FloatArray, FloatArray]:
     k = avg.vv.shape[0]
     # LAPACK directly: these are 3x3 and 7x7 problems, where numpy's wrappers cost 5x the work
     _, _, coef, info = lapack.dgesv(avg.tt, avg.tv)
-    if info != 0 or not np.all(np.isfinite(coef)):
+    if info != 0 or not np.isfinite(coef).all():
         coef = np.zeros((N_TRIVIAL, k))
     ev, u, info = lapack.dsyevd(avg.vv - avg.tv.T @ coef)  # G' (symmetric)
     top = float(ev[-1]) if info == 0 else 0.0
@@ -274,7 +297,7 @@ class DistributedEigenEstimator:
         if nb.x.shape[1:] != (n_c,) or nb.z.shape != nb.x.shape:
             nb = Neighbours.none(n_c)
         self.degree = len(nb.x)
-        if self.x is None or self.z is None or not np.all(np.isfinite(self.x)):
+        if self.x is None or self.z is None or not np.isfinite(self.x).all():
             self.x, self.z = phi.copy(), np.zeros(n_c)
         a = metropolis_weights(self.degree, nb.degree)
         self.x, self.z = pi_round(self.x, self.z, phi, nb.x, nb.z, a, g.consensus)
@@ -289,10 +312,8 @@ class DistributedEigenEstimator:
             self.c_min = c[:, 0]
         trivial = t_i @ coef
         alpha = g.step / self.s_bar if self.s_bar > 0.0 else 0.0
-        v_new = (
-            self.v - alpha * mv_i - g.k_t * trivial - 0.5 * g.k_n * self.v @ (avg.vv - np.eye(k))
-        )
-        if not np.all(np.isfinite(v_new)) or float(np.sum(v_new * v_new)) > MAX_BLOCK_NORM2:
+        v_new = self.v - alpha * mv_i - g.k_t * trivial - 0.5 * g.k_n * self.v @ (avg.vv - _eye(k))
+        if not float((v_new * v_new).sum()) <= MAX_BLOCK_NORM2:  # too large, inf or nan
             # diverging (e.g. a step too large for a spectrum that jumped): restart from a
             # fresh direction rather than feed the controller garbage
             self.restarts += 1

@@ -69,8 +69,9 @@ def pi_round(
 ) -> tuple[FloatArray, FloatArray]:
     """One round of the PI consensus (module docstring); ``x_nbrs, z_nbrs`` are ``(K, n)``, ``a``
     the ``K`` Metropolis weights. Returns ``(x+, z+)``."""
-    dx = a.sum() * x - a @ x_nbrs  # sum_j a_ij (x_i - x_j)
-    dz = a.sum() * z - a @ z_nbrs
+    a_sum = a.sum()
+    dx = a_sum * x - a @ x_nbrs  # sum_j a_ij (x_i - x_j)
+    dz = a_sum * z - a @ z_nbrs
     x_new = x + gains.e_g * (phi - x) - gains.e_p * dx + gains.e_i * dz
     z_new = z - gains.e_i * dx
     return x_new, z_new

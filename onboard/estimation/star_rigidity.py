@@ -48,12 +48,13 @@ bearings: angles are frame-free) and residuals ``e_jk = C_jk - Cm_jk``, the star
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from onboard.geometry import FloatArray, IntArray
-from onboard.rigidity.weights import SensingModel, fov_weight, range_weight
+from onboard.geometry import E3, FloatArray, IntArray
+from onboard.rigidity.weights import SensingModel, sensing_weights
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +77,14 @@ class Star:
         return len(self.d)
 
 
+@cache
+def _off_diagonal(m: int) -> FloatArray:
+    """``1 - I_m`` (read-only, shared by every star of ``m`` neighbours)."""
+    mask = 1.0 - np.eye(m)
+    mask.flags.writeable = False
+    return mask
+
+
 def star(
     p_own_ned: ArrayLike, yaw_own_rad: float, p_nbr_ned: ArrayLike, model: SensingModel
 ) -> Star:
@@ -92,9 +101,8 @@ def star(
     c_axis = np.array([np.cos(yaw_own_rad), np.sin(yaw_own_rad), 0.0])
     s_c = np.array([-c_axis[1], c_axis[0], 0.0])
     cos_axis = b @ c_axis
-    w_r, dw_r = range_weight(d, model)
-    w_f, dw_f = fov_weight(cos_axis, model)
-    mask = 1.0 - np.eye(len(d))
+    w_r, dw_r, w_f, dw_f = sensing_weights(d, cos_axis, model)
+    mask = _off_diagonal(len(d))
     dh_dr = ((dw_r * d + w_r) * w_f)[:, None] * b + (w_r * dw_f)[:, None] * (
         c_axis - cos_axis[:, None] * b
     )
@@ -106,7 +114,7 @@ def star(
         cos=b @ b.T,
         mask=mask,
         h=h,
-        w=np.outer(h, h) * mask,
+        w=h[:, None] * h[None, :] * mask,
         dh_dr=dh_dr,
         dh_dyaw=w_r * dw_f * d * (b @ s_c),
     )
@@ -114,7 +122,8 @@ def star(
 
 def restrict(s: Star, idx: IntArray) -> Star:
     """The star over the neighbours ``idx`` only (e.g. those seen now, out of the candidates)."""
-    ix = np.ix_(idx, idx)
+    col = np.asarray(idx)
+    ix = (col[:, None], col)  # np.ix_(idx, idx)
     return Star(
         s.r[idx],
         s.d[idx],
@@ -184,20 +193,42 @@ def form_gradient(
     a, g = _projections(s, delta)
     q = s.w * g
     mv = _with_own(_row_sums(s, q))
+    grad_p, grad_yaw = _form_gradient_terms(s, delta, a, g, q)
+    value = 0.5 * float((q * g).sum())
+    return value, mv, grad_p, grad_yaw
+
+
+def form_gradient_only(s: Star, v_own: ArrayLike, v_nbr: ArrayLike) -> tuple[FloatArray, float]:
+    """:func:`form_gradient`'s ``(grad_p (M + 1, 3), d/dpsi_i)`` alone (paper 003 eq. 21), for
+    a caller that needs neither the value nor ``M_w v`` (the rigidity layer's Ritz vector)."""
+    delta = np.asarray(v_nbr, dtype=float).reshape(-1, 3) - np.asarray(v_own, dtype=float)
+    m = s.size
+    if m < 2:
+        return np.zeros((m + 1, 3)), 0.0
+    a, g = _projections(s, delta)
+    return _form_gradient_terms(s, delta, a, g, s.w * g)
+
+
+def _form_gradient_terms(
+    s: Star, delta: FloatArray, a: FloatArray, g: FloatArray, q: FloatArray
+) -> tuple[FloatArray, float]:
+    """``dF/dp`` ``(M + 1, 3)`` and ``dF/dpsi_i`` from ``delta``, ``a``, ``g`` and ``q = W * g``
+    (module docstring, "Form gradient")."""
     coef = (g * g * s.mask) @ s.h  # c_j = sum_k h_k g_jk^2
     big_q = 2.0 * q
     pd = delta - a[:, None] * s.b  # P_j delta_j
     e = pd @ s.b.T  # E_jk = b_k . Pd_j
     inv_d = 1.0 / s.d
+    inv_d2 = inv_d**2
+    qc = (big_q * s.cos).sum(axis=1)  # sum_k Q_jk C_jk
     grad_r = (
-        -(a * inv_d)[:, None] * _row_sums(s, big_q)
-        - ((big_q * e).sum(axis=1) * inv_d**2)[:, None] * s.b
-        - ((big_q * s.cos).sum(axis=1) * inv_d**2)[:, None] * pd
+        -(a * inv_d)[:, None] * ((big_q @ s.b - qc[:, None] * s.b) / s.d[:, None])  # _row_sums
+        - ((big_q * e).sum(axis=1) * inv_d2)[:, None] * s.b
+        - (qc * inv_d2)[:, None] * pd
         + inv_d[:, None] * (big_q @ (pd * inv_d[:, None]) - ((big_q * e.T) @ inv_d)[:, None] * s.b)
         + coef[:, None] * s.dh_dr
     )
-    value = 0.5 * float((q * g).sum())
-    return value, mv, _with_own(grad_r), float(coef @ s.dh_dyaw)
+    return _with_own(grad_r), float(coef @ s.dh_dyaw)
 
 
 def weighted_degree(s: Star) -> FloatArray:
@@ -205,10 +236,11 @@ def weighted_degree(s: Star) -> FloatArray:
     first. The network's ``max_v s_v`` bounds ``lambda_max(M_w)`` (module docstring)."""
     c = s.cos
     inv_d = 1.0 / s.d
+    inv_d2 = inv_d**2
     r2 = (
         2.0
         * (1.0 - c * c)
-        * (inv_d[:, None] ** 2 + inv_d[None, :] ** 2 - c * np.outer(inv_d, inv_d))
+        * (inv_d2[:, None] + inv_d2[None, :] - c * (inv_d[:, None] * inv_d[None, :]))
     )
     per_angle = s.w * r2
     per_nbr = per_angle.sum(axis=1)
@@ -236,5 +268,5 @@ def vertical_gradient(
     if len(beta) != s.size:
         raise ValueError(f"{s.size} neighbour estimates for {len(beta)} bearings")
     e = s.b[:, 2] - beta[:, 2]
-    db = (np.array([0.0, 0.0, 1.0]) - s.b[:, 2:3] * s.b) / s.d[:, None]
+    db = (E3 - s.b[:, 2:3] * s.b) / s.d[:, None]
     return k_vertical * float(e @ e), _with_own(2.0 * k_vertical * e[:, None] * db)

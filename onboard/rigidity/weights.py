@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -110,6 +111,40 @@ def fov_weight(cos_axis: ArrayLike, model: SensingModel) -> tuple[FloatArray, Fl
     if model.all_round:
         return np.ones_like(c), np.zeros_like(c)
     return smooth_step(c, model.cos_fov_full, model.cos_fov_edge)
+
+
+def sensing_weights(
+    d_m: FloatArray, cos_axis: FloatArray, model: SensingModel
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`range_weight` of ``d_m`` and :func:`fov_weight` of ``cos_axis`` (both ``(M,)``):
+    ``(w_range, dw_range/dd, w_fov, dw_fov/dcos)`` (paper 003 eq. 17-18).
+
+    The two smooth steps are evaluated together, as the rows of one ``(2, M)`` array, with the
+    same arithmetic as :func:`smooth_step` per entry."""
+    if math.isinf(model.range_m) or model.all_round:
+        return (*range_weight(d_m, model), *fov_weight(cos_axis, model))
+    x_one, width = _step_rows(model)
+    t = np.clip((np.array((d_m, cos_axis), dtype=float) - x_one) / width, 0.0, 1.0)
+    value = 1.0 - t * t * (3.0 - 2.0 * t)
+    slope = -6.0 * t * (1.0 - t) / width
+    return value[0], slope[0], value[1], slope[1]
+
+
+@cache
+def _step_rows(model: SensingModel) -> tuple[FloatArray, FloatArray]:
+    """``x_one`` and ``x_zero - x_one`` of the range and fov steps as ``(2, 1)`` columns."""
+    x_one = (model.range_full_m, model.cos_fov_full)
+    x_zero = (model.range_m, model.cos_fov_edge)
+    for one, zero in zip(x_one, x_zero, strict=True):
+        if not (math.isfinite(one) and math.isfinite(zero)) or one == zero:
+            raise ValueError(f"smooth_step needs finite, distinct ends, got {one!r}, {zero!r}")
+    columns = (
+        np.array([[x_one[0]], [x_one[1]]]),
+        np.array([[x_zero[0] - x_one[0]], [x_zero[1] - x_one[1]]]),
+    )
+    for a in columns:
+        a.flags.writeable = False
+    return columns
 
 
 @dataclass(frozen=True)
