@@ -36,10 +36,21 @@ def smooth_step(x: ArrayLike, x_one: float, x_zero: float) -> tuple[FloatArray, 
     slope are continuous everywhere (paper 003 eq. 17, cubic form). Works in either direction
     (``x_zero`` above or below ``x_one``); ``x_one == x_zero`` is rejected (a hard step).
     """
+    _check_ends(x_one, x_zero)
+    return _cubic_step(np.asarray(x, dtype=float), x_one, x_zero - x_one)
+
+
+def _check_ends(x_one: float, x_zero: float) -> None:
     if not (math.isfinite(x_one) and math.isfinite(x_zero)) or x_one == x_zero:
         raise ValueError(f"smooth_step needs finite, distinct ends, got {x_one!r}, {x_zero!r}")
-    width = x_zero - x_one
-    t = np.clip((np.asarray(x, dtype=float) - x_one) / width, 0.0, 1.0)
+
+
+def _cubic_step(
+    x: FloatArray, x_one: float | FloatArray, width: float | FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`smooth_step` with checked ends, ``width = x_zero - x_one`` (ends may be arrays
+    that broadcast against ``x``)."""
+    t = np.clip((x - x_one) / width, 0.0, 1.0)
     value = 1.0 - t * t * (3.0 - 2.0 * t)
     slope = -6.0 * t * (1.0 - t) / width
     return value, slope
@@ -119,14 +130,11 @@ def sensing_weights(
     """:func:`range_weight` of ``d_m`` and :func:`fov_weight` of ``cos_axis`` (both ``(M,)``):
     ``(w_range, dw_range/dd, w_fov, dw_fov/dcos)`` (paper 003 eq. 17-18).
 
-    The two smooth steps are evaluated together, as the rows of one ``(2, M)`` array, with the
-    same arithmetic as :func:`smooth_step` per entry."""
+    The two smooth steps are evaluated together, as the rows of one ``(2, M)`` array (one
+    numpy call per operation instead of two: this runs for every star, every step)."""
     if math.isinf(model.range_m) or model.all_round:
         return (*range_weight(d_m, model), *fov_weight(cos_axis, model))
-    x_one, width = _step_rows(model)
-    t = np.clip((np.array((d_m, cos_axis), dtype=float) - x_one) / width, 0.0, 1.0)
-    value = 1.0 - t * t * (3.0 - 2.0 * t)
-    slope = -6.0 * t * (1.0 - t) / width
+    value, slope = _cubic_step(np.array((d_m, cos_axis), dtype=float), *_step_rows(model))
     return value[0], slope[0], value[1], slope[1]
 
 
@@ -136,8 +144,7 @@ def _step_rows(model: SensingModel) -> tuple[FloatArray, FloatArray]:
     x_one = (model.range_full_m, model.cos_fov_full)
     x_zero = (model.range_m, model.cos_fov_edge)
     for one, zero in zip(x_one, x_zero, strict=True):
-        if not (math.isfinite(one) and math.isfinite(zero)) or one == zero:
-            raise ValueError(f"smooth_step needs finite, distinct ends, got {one!r}, {zero!r}")
+        _check_ends(one, zero)
     columns = (
         np.array([[x_one[0]], [x_one[1]]]),
         np.array([[x_zero[0] - x_one[0]], [x_zero[1] - x_one[1]]]),

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -25,6 +27,7 @@ from onboard.rigidity.weights import (
     edge_weights,
     fov_weight,
     range_weight,
+    sensing_weights,
     smooth_step,
 )
 
@@ -193,6 +196,20 @@ def test_smooth_step_ends_and_derivative() -> None:
     assert ds.min() == pytest.approx(-1.5 / 2.0, rel=1e-3)  # peak slope 1.5 / width
     with pytest.raises(ValueError):
         smooth_step(x, 2.0, 2.0)
+
+
+@pytest.mark.parametrize(
+    "model",
+    [SensingModel(120.0, 15.0), SensingModel(360.0, 15.0), SensingModel(90.0, math.inf)],
+)
+def test_sensing_weights_are_the_range_and_fov_weights(model: SensingModel) -> None:
+    rng = np.random.default_rng(2)
+    d = rng.uniform(0.5, 20.0, 40)
+    cos_axis = rng.uniform(-1.0, 1.0, 40)
+    together = sensing_weights(d, cos_axis, model)
+    apart = (*range_weight(d, model), *fov_weight(cos_axis, model))
+    for a, b in zip(together, apart, strict=True):
+        np.testing.assert_array_equal(a, b)  # the same arithmetic, entry by entry
 
 
 def test_range_and_fov_weights_and_derivatives() -> None:
