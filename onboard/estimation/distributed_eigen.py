@@ -118,16 +118,16 @@ def n_consensus(k: int) -> int:
 
 
 @cache
-def _triu(k: int) -> tuple[IntArray, IntArray, IntArray]:
-    """Upper-triangle rows, columns and the flat indices of the lower triangle's mirror."""
+def _triu(k: int) -> tuple[IntArray, IntArray]:
+    """Upper-triangle rows and columns (the packed order of the averaged matrices)."""
     r, c = np.triu_indices(k)
-    return r, c, c * k + r
+    return r, c
 
 
 @cache
 def _sym_index(k: int) -> IntArray:
     """``(k, k)`` positions in the packed upper triangle of every entry of the symmetric matrix."""
-    r, c, _ = _triu(k)
+    r, c = _triu(k)
     out = np.zeros((k, k), dtype=np.int64)
     out[r, c] = np.arange(len(r))
     out[c, r] = np.arange(len(r))
@@ -150,7 +150,7 @@ def _eye(k: int) -> FloatArray:
 def consensus_input(t_i: FloatArray, v_i: FloatArray, mv_i: FloatArray) -> FloatArray:
     """Agent ``i``'s terms of the averaged quantities (:func:`n_consensus`), from ``T_i``
     ``(3, 7)``, ``V_i`` and ``(M_w V)_i`` ``(3, k)``."""
-    iu = _triu(v_i.shape[1])[:2]
+    iu = _triu(v_i.shape[1])
     vmv = v_i.T @ mv_i
     return np.concatenate(
         [
