@@ -79,10 +79,13 @@ MIN_SPEEDUP = 0.2
 """Slowest simulation the demo accepts. The daemons scale their heartbeat timeout with the speed
 (the simulator's heartbeats come once per *simulated* second); below 0.2 the other wall-clock
 timers of the flight stack (command retries, the evaluator's guards) have not been tried."""
-CPU_PER_AGENT = 0.3
+CPU_PER_AGENT = 0.45
 CPU_SIMULATOR = 0.2
-"""Cores one daemon and the simulator use in real time (``benchmarks/bench_daemon.py``: 27-30%
-per agent on the 2-core development machine)."""
+"""Cores one daemon and the simulator use in real time. A daemon with rigidity maintenance:
+40% at 1x (``benchmarks/bench_daemon.py``, 4 vehicles), and in the six-vehicle demo 28% of a
+core at 0.6x and 20% at 0.4x (its ``cpu_fraction`` metric), about 0.04 + 0.4 x speed. The 0.3
+measured before the rigidity layer put six vehicles at 0.6x, 85% of two cores: a slower CI
+machine fell behind and the scale ended 2.5% off."""
 CPU_BUDGET = 0.6
 """Fraction of the machine the default speed plans to use: above it, late core ticks and
 setpoints hundreds of milliseconds old made the constrained active case drift."""
