@@ -170,6 +170,10 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     k_distance_loc: float = 1.0
     k_vertical_loc: float = 4.0
     """Gain of the gravity (bearing elevation) term of angle localization; 0 = angles only."""
+    rigidity_softmin_tau: float = 0.01
+    """The rigidity action follows the gradient of a smooth minimum of the tracked modes' eigenvalues
+    at this temperature (:func:`onboard.control.rigidity.softmin_weights`; 0: the smallest
+    mode alone, as in paper 003)."""
     eigen_columns: int = 3
     eigen_step: float = 1.5
     eigen_k_t: float = 0.3

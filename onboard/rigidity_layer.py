@@ -16,9 +16,12 @@ rigidity-maintenance, collision and tracking actions of paper 003, for one vehic
    the estimates (candidates: every communication neighbour it could see; the sensing weights
    drop those out of view), or, with ``rigidity_eigen = "centralized"``, computes the eigenpair
    from every agent's shared estimate;
-4. returns the body-frame actions: ``-V_R'(lambda) grad lambda`` (eq. 19-23), collision
+4. returns the body-frame actions: ``-V_R'(lambda) grad L`` (eq. 19-23), collision
    avoidance on estimated positions and the target (eq. 30-31) and target tracking (eq. 33),
-   from :mod:`onboard.control.rigidity`.
+   from :mod:`onboard.control.rigidity`. ``grad L`` is the gradient of a smooth minimum of
+   the tracked modes' eigenvalues (:func:`onboard.control.rigidity.softmin_weights`): the
+   modes near the smallest blend in, so the action does not jump where two modes cross
+   (paper 003 follows the smallest mode's gradient alone: ``rigidity_softmin_tau = 0``).
 
 It publishes :class:`messages.rigidity.AngleLocalizationShare` and
 :class:`messages.rigidity.RigidityEigenShare` every step; the subspace iteration's extra
@@ -47,7 +50,7 @@ from onboard.estimation.distributed_eigen import (
 )
 from onboard.geometry import FloatArray
 from onboard.graph import complete_graph
-from onboard.rigidity.angle import weighted_eigenvalue_gradient
+from onboard.rigidity.angle import weighted_eigenvalues_gradients
 from onboard.rigidity.weights import SensingModel
 
 if TYPE_CHECKING:
@@ -62,6 +65,22 @@ of ``lambda_safe`` of the own one (:meth:`RigidityLayer._agreement`)."""
 ROUND_TIMEOUT_S = 0.3
 """The eigen-estimate takes its next round once every candidate's share of its previous round
 is in, or after this long (a neighbour that went quiet must not stall it)."""
+
+
+BLEND_FLOOR = 1e-3
+"""Modes whose smooth-minimum weight is below this are left out of the blended gradient (the
+others' weights renormalized): a mode 0.07 above the smallest, at the default temperature."""
+
+
+def _blend(theta: FloatArray, tau: float) -> list[tuple[int, float]]:
+    """``(mode, weight)`` of the modes the rigidity action blends
+    (:func:`onboard.control.rigidity.softmin_weights`, above :data:`BLEND_FLOOR`)."""
+    if len(theta) == 0:
+        return []
+    pi = ctl.softmin_weights(theta, tau)
+    kept = [(m, float(w)) for m, w in enumerate(pi.tolist()) if w >= BLEND_FLOOR]
+    total = sum(w for _, w in kept)
+    return [(m, w / total) for m, w in kept]
 
 
 def _vec(a: FloatArray) -> Vec3:
@@ -171,6 +190,7 @@ class RigidityLayer:
             r_track_m=cfg.r_track_m,
             k_track_range=cfg.k_track_range,
             k_track_camera=cfg.k_track_camera,
+            softmin_tau=cfg.rigidity_softmin_tau,
         )
         # per-round gains: the same for any message rate and team size
         gains = EigenGains(
@@ -410,13 +430,15 @@ class RigidityLayer:
         mv_in, s_in, form_in = wire.addressed_to(msgs, self.id)
         mv_i = mv[0] + mv_in
         s_i = float(s_parts[0]) + s_in
-        # the Ritz vector's blocks with this agent's view of the Ritz problem (previous round)
+        # the Ritz vectors' blocks with this agent's view of the Ritz problem (previous round)
         t_blocks = trivial_motion_blocks(np.array([p_own, *[p_est[j] for j in cand]]))
         y = eig.ritz_blocks(np.concatenate([eig.v[None], v_cand]), t_blocks)
-        if y is None:
-            g_form, g_form_yaw = np.zeros((len(cand) + 1, 3)), 0.0
-        else:
-            g_form, g_form_yaw = st.form_gradient_only(s_cand, y[0], y[1:])
+        g_form, g_form_yaw = np.zeros((len(cand) + 1, 3)), 0.0
+        if y is not None:  # the smooth minimum's gradient: the modes' gradients, blended
+            for m, weight in _blend(eig.theta, self.gains.softmin_tau):
+                g_m, g_m_yaw = st.form_gradient_only(s_cand, y[0, :, m], y[1:, :, m])
+                g_form = g_form + weight * g_m
+                g_form_yaw += weight * g_m_yaw
         eig.step(t_blocks[0], mv_i, s_i, nbrs)
         x, z = eig.share()
         # after a restart (the estimator diverged) there is no consensus state to send until
@@ -459,10 +481,15 @@ class RigidityLayer:
         me = ids.index(self.id)
         p = np.array([p_own if j == self.id else shares[j].p_hat_ned for j in ids])
         yaw = np.array([self.yaw_hat if j == self.id else shares[j].yaw_hat_rad for j in ids])
-        lam, gp, gy = weighted_eigenvalue_gradient(p, yaw, complete_graph(len(ids)), self.model)
-        self.lambda_hat = lam
-        self.grad_lambda_p = gp[me]
-        self.grad_lambda_yaw = float(gy[me])
+        lams, gp, gy = weighted_eigenvalues_gradients(
+            p, yaw, complete_graph(len(ids)), self.model, self.cfg.eigen_columns
+        )
+        self.lambda_hat = float(lams[0])
+        self.grad_lambda_p = np.zeros(3)
+        self.grad_lambda_yaw = 0.0
+        for m, weight in _blend(lams, self.gains.softmin_tau):
+            self.grad_lambda_p = self.grad_lambda_p + weight * gp[m, me]
+            self.grad_lambda_yaw += weight * float(gy[m, me])
 
     def _actions(
         self, own: OwnMeasurements, t_s: float, p_own: FloatArray, others: FloatArray

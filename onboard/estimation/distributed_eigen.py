@@ -28,7 +28,9 @@ the next one), and the estimate is the smallest **Ritz value** of that span: wit
 ``H = V^T M_w V / N`` and ``G' = V^T (I - P_T) V / N`` (trivial parts removed, so they cannot
 fake a small eigenvalue), ``lambda_hat = min theta``, ``H c = theta G' c``. A mode crossing
 inside the span moves the Ritz value at once. Its Ritz vector ``y = (I - P_T) V c`` (scaled so
-``|y|^2 = N``) gives the gradient ``d lambda/dx = y^T (dM_w/dx) y / N`` (paper 003 eq. 21).
+``|y|^2 = N``) gives the gradient ``d lambda/dx = y^T (dM_w/dx) y / N`` (paper 003 eq. 21);
+the other Ritz pairs give the same for the next modes, which the rigidity layer blends into the
+gradient of a smooth minimum (:mod:`onboard.rigidity_layer`).
 
 **What is local.** ``M_w = sum_a W_a r_a r_a^T`` and an angle ``a = (i, j, k)`` involves only
 ``i`` and the two neighbours it sees: agent ``i`` evaluates its angles' part of ``M_w V``
@@ -256,8 +258,9 @@ class DistributedEigenEstimator:
     s_bar: float = 0.0
     lambda_hat: float = 0.0
     theta: FloatArray = field(default_factory=lambda: np.zeros(0))
-    c_min: FloatArray | None = None
-    """Coefficients of the smallest Ritz vector (``y = (V - P_T V) c_min``), ``None`` until known."""
+    c_ritz: FloatArray | None = None
+    """Coefficients ``(k, r)`` of the Ritz vectors, ascending (``y_m = (V - P_T V) c_m``), matching
+    :attr:`theta`; ``None`` until known."""
     coef: FloatArray | None = None
     degree: int = 0
     restarts: int = 0
@@ -309,7 +312,7 @@ class DistributedEigenEstimator:
         if len(theta):
             self.theta = theta
             self.lambda_hat = float(max(theta[0], 0.0))
-            self.c_min = c[:, 0]
+            self.c_ritz = c
         trivial = t_i @ coef
         alpha = g.step / self.s_bar if self.s_bar > 0.0 else 0.0
         v_new = self.v - alpha * mv_i - g.k_t * trivial - 0.5 * g.k_n * self.v @ (avg.vv - _eye(k))
@@ -322,12 +325,12 @@ class DistributedEigenEstimator:
         self.v = v_new
 
     def ritz_blocks(self, v_blocks: FloatArray, t_blocks: FloatArray) -> FloatArray | None:
-        """Blocks ``y_j = (V_j - T_j coef) c_min`` ``(K, 3)`` of the smallest Ritz vector for
-        agents with ``V_j`` ``(K, 3, k)`` and ``T_j`` ``(K, 3, 7)`` (this agent's own view of
-        ``coef`` and ``c_min``); ``None`` before the first Ritz value."""
-        if self.c_min is None or self.coef is None:
+        """Blocks ``y_jm = (V_j - T_j coef) c_m`` ``(K, 3, r)`` of the Ritz vectors (smallest
+        first) for agents with ``V_j`` ``(K, 3, k)`` and ``T_j`` ``(K, 3, 7)`` (this agent's own
+        view of ``coef`` and ``c``); ``None`` before the first Ritz value."""
+        if self.c_ritz is None or self.coef is None:
             return None
-        return (v_blocks - t_blocks @ self.coef) @ self.c_min
+        return (v_blocks - t_blocks @ self.coef) @ self.c_ritz
 
 
 def run_rounds(
@@ -404,4 +407,4 @@ def run_rounds(
         states = new_states
         v_shared = [e.v.copy() for e in est]
     y = est[0].ritz_blocks(np.array([e.v for e in est]), t_blocks)
-    return out, np.zeros((n, 3)) if y is None else y
+    return out, np.zeros((n, 3)) if y is None else y[:, :, 0]

@@ -189,19 +189,25 @@ def _weighted_gram(geo: _AngleGeometry, n: int, dim: int, w_angle: FloatArray | 
 
 
 def _eigenpair(m: FloatArray, index: int) -> tuple[float, FloatArray]:
-    """The ``index``-th smallest (0-based) eigenvalue of symmetric ``m`` and a unit eigenvector.
+    """The ``index``-th smallest (0-based) eigenvalue of symmetric ``m`` and a unit eigenvector."""
+    vals, vecs = _eigenpairs(m, index, 1)
+    return float(vals[0]), vecs[:, 0]
 
-    ``scipy.linalg.eigh`` with ``subset_by_index`` computes only the ``index + 1`` smallest pairs.
+
+def _eigenpairs(m: FloatArray, index: int, count: int) -> tuple[FloatArray, FloatArray]:
+    """The ``index``-th to ``(index + count - 1)``-th smallest (0-based) eigenvalues of symmetric
+    ``m`` ``(count,)`` and unit eigenvectors ``(dN, count)``.
+
+    ``scipy.linalg.eigh`` with ``subset_by_index`` computes only the smallest pairs it needs.
     """
-    if m.shape[0] <= index:
-        raise ValueError(
-            f"need more than {index} coordinates for this eigenvalue, got {m.shape[0]}"
-        )
+    last = index + count - 1
+    if m.shape[0] <= last:
+        raise ValueError(f"need more than {last} coordinates for this eigenvalue, got {m.shape[0]}")
     try:
-        vals, vecs = scipy.linalg.eigh(m, subset_by_index=[0, index], check_finite=False)
+        vals, vecs = scipy.linalg.eigh(m, subset_by_index=[0, last], check_finite=False)
     except np.linalg.LinAlgError:  # LAPACK ?syevr can fail ("Internal Error") on rare inputs
         vals, vecs = np.linalg.eigh(m)
-    return float(vals[index]), vecs[:, index]
+    return vals[index : last + 1], vecs[:, index : last + 1]
 
 
 # --------------------------------------------------------------------------- rank and eigenvalue
@@ -360,11 +366,23 @@ def weighted_eigenvalue_gradient(
     eigenvalue is simple; at a repeated eigenvalue the result is one element of the
     subdifferential that depends on the eigenvector the solver returns.
     """
+    lam, grad_p, grad_yaw = weighted_eigenvalues_gradients(p, yaw_rad, edges, model, 1)
+    return float(lam[0]), grad_p[0], grad_yaw[0]
+
+
+def weighted_eigenvalues_gradients(
+    p: ArrayLike, yaw_rad: ArrayLike, edges: ArrayLike, model: SensingModel, count: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The ``count`` smallest non-trivial weighted eigenvalues ``(count,)`` and the gradient of
+    each, as :func:`weighted_eigenvalue_gradient`: ``(lambdas, grad_p (count, N, d),
+    grad_yaw (count, N))``. For a smooth minimum over nearly equal modes
+    (:func:`onboard.control.rigidity.softmin_weights`)."""
     prob, pos, yaw = _weighted_problem(p, yaw_rad, edges, model)
     n, dim = pos.shape
-    lam, v = _eigenpair(_weighted_gram(prob.geo, n, dim, prob.w_angle), trivial_motion_count(dim))
-    _, grad_p, grad_yaw = _form_gradient(prob, pos, yaw, v.reshape(n, dim))
-    return lam, grad_p, grad_yaw
+    gram = _weighted_gram(prob.geo, n, dim, prob.w_angle)
+    lams, vecs = _eigenpairs(gram, trivial_motion_count(dim), count)
+    grads = [_form_gradient(prob, pos, yaw, v.reshape(n, dim))[1:] for v in vecs.T]
+    return lams, np.array([g[0] for g in grads]), np.array([g[1] for g in grads])
 
 
 def weighted_form_gradient(

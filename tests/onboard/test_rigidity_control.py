@@ -9,7 +9,11 @@ import pytest
 from onboard.control import rigidity as ctl
 from onboard.geometry import camera_axis_ned, rot_z
 from onboard.graph import complete_graph
-from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue, weighted_eigenvalue_gradient
+from onboard.rigidity.angle import (
+    weighted_angle_rigidity_eigenvalue,
+    weighted_eigenvalue_gradient,
+    weighted_eigenvalues_gradients,
+)
 from onboard.rigidity.weights import SensingModel
 
 GAINS = ctl.MaintenanceGains(
@@ -189,3 +193,44 @@ def test_agent_core_rigidity_mode_drops_bad_payloads_and_commands_finite() -> No
     plain = AgentCore(AgentConfig(agent_id=0, n_agents=3, edges=edges, mode="hold"))
     plain.step(0.0, own, [good])
     assert plain.dropped.get("unknown_type") == 1
+
+
+def test_softmin_weights_blend_only_the_modes_near_the_minimum() -> None:
+    w = ctl.softmin_weights([0.30, 0.10, 0.11], 0.01)
+    assert w.sum() == pytest.approx(1.0)
+    assert w[1] > w[2] > 0.2 and w[0] < 1e-8  # 0.2 above the minimum: out of the blend
+    np.testing.assert_array_equal(ctl.softmin_weights([0.3, 0.1, 0.11], 0.0), [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(ctl.softmin_weights([0.2, 0.2], 0.05), [0.5, 0.5])
+    with pytest.raises(ValueError):
+        ctl.softmin_weights([], 0.01)
+    with pytest.raises(ValueError):
+        ctl.MaintenanceGains(softmin_tau=-1.0)
+
+
+def test_smooth_minimum_gradient_matches_finite_differences() -> None:
+    """``sum_m pi_m grad lambda_m`` is the gradient of ``L = -tau log sum_m exp(-lambda_m / tau)``
+    over the 3 smallest non-trivial weighted eigenvalues (what the rigidity action follows)."""
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-3.0, 3.0, (5, 3)) + np.array([0.0, 0.0, -5.0])
+    c = p.mean(axis=0)
+    yaw = np.arctan2(c[1] - p[:, 1], c[0] - p[:, 0]) + rng.normal(0.0, 0.3, 5)
+    model = SensingModel(120.0, 10.0)
+    edges = complete_graph(5)
+    lams, gp, gy = weighted_eigenvalues_gradients(p, yaw, edges, model, 3)
+    tau = float(lams[1] - lams[0])  # the second mode weighs e^-1 of the first: a real blend
+    pi = ctl.softmin_weights(lams, tau)
+    assert pi[1] > 0.2
+
+    def smooth_min(x: np.ndarray, y: np.ndarray) -> float:
+        lam = weighted_eigenvalues_gradients(x, y, edges, model, 3)[0]
+        return float(-tau * np.log(np.sum(np.exp(-(lam - lams[0]) / tau))))
+
+    grad_p = np.einsum("m,mnd->nd", pi, gp)
+    grad_yaw = pi @ gy
+    num_p = _fd(lambda x: smooth_min(x, yaw), p)
+    num_yaw = _fd(lambda y: smooth_min(p, y), yaw)
+    scale = max(np.abs(grad_p).max(), np.abs(grad_yaw).max())
+    assert np.abs(grad_p - num_p).max() <= 1e-6 * scale
+    assert np.abs(grad_yaw - num_yaw).max() <= 1e-6 * scale
+    # and it is not the smallest mode's gradient alone
+    assert np.abs(grad_p - gp[0]).max() > 0.05 * scale

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
+import pytest
 
 from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
@@ -20,13 +21,18 @@ _C = P.mean(axis=0)
 YAW = np.arctan2(_C[1] - P[:, 1], _C[0] - P[:, 0])  # cameras toward the barycenter
 
 
-def _layers() -> list[RigidityLayer]:
+def _layers(**overrides: object) -> list[RigidityLayer]:
     edges = tuple((int(i), int(j)) for i, j in complete_graph(N))
     prior = tuple(tuple(float(x) for x in row) for row in P)
     out = []
     for i in range(N):
         cfg = AgentConfig(
-            agent_id=i, n_agents=N, edges=edges, mode="rigidity-tracking", p_hat0_ned=prior
+            agent_id=i,
+            n_agents=N,
+            edges=edges,
+            mode="rigidity-tracking",
+            p_hat0_ned=prior,
+            **overrides,  # type: ignore[arg-type]
         )
         others = [j for j in range(N) if j != i]
         out.append(RigidityLayer(cfg, others, others))
@@ -98,6 +104,27 @@ def test_distributed_estimate_on_a_hovering_team_matches_the_centralized_value()
     for layer in layers:
         assert abs(layer.lambda_hat - lam) < 0.02 * lam
         assert np.all(np.isfinite(layer.grad_lambda_p))
+
+
+@pytest.mark.parametrize("eigen", ["distributed", "centralized"])
+def test_gradient_is_the_smooth_minimum_gradient(eigen: str) -> None:
+    """Each agent's blended gradient (distributed: its own form terms plus what its neighbours
+    sent) is its part of ``sum_m pi_m grad lambda_m`` over the tracked modes."""
+    from onboard.control.rigidity import softmin_weights
+    from onboard.rigidity.angle import weighted_eigenvalues_gradients
+
+    model = _layers()[0].model
+    lams, gp, _ = weighted_eigenvalues_gradients(P, YAW, complete_graph(N), model, 3)
+    tau = float(lams[1] - lams[0])  # a real blend: the second mode weighs e^-1 of the first
+    layers = _layers(rigidity_softmin_tau=tau, rigidity_eigen=eigen)
+    _exchange(layers, 300)
+    pi = softmin_weights(lams, tau)
+    assert pi[1] > 0.2
+    blended = np.einsum("m,mnd->nd", pi, gp)
+    scale = np.abs(blended).max()
+    assert np.abs(blended - gp[0]).max() > 0.1 * scale  # not the smallest mode alone
+    for i, layer in enumerate(layers):
+        np.testing.assert_allclose(layer.grad_lambda_p, blended[i], atol=0.02 * scale)
 
 
 def test_wrong_layout_is_malformed() -> None:
