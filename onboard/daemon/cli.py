@@ -201,9 +201,11 @@ def _camera_pipelines(fleet: Any, camera: list[Path] | None, markers: Path | Non
 
 
 def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
-    """The autopilot's roll and pitch stamped in the frames' clock: autopilot time
-    (``time_boot_ms``, which is simulation time) with the simulator's clock; otherwise the
-    daemon's clock minus the attitude's age."""
+    """The autopilot's roll and pitch stamped in the frames' clock: the ATTITUDE message's own
+    autopilot time (``time_boot_ms``, which is simulation time) with the simulator's clock;
+    otherwise the daemon's clock minus the attitude's age. Not the newest autopilot time of any
+    message: a LOCAL_POSITION_NED after the ATTITUDE re-stamped the old roll and pitch up to a
+    stream period late, and levelling paired them with the wrong frames."""
     from onboard.daemon.camera_source import AttitudeSample
     from onboard.daemon.clock import autopilot_stamp
 
@@ -211,7 +213,7 @@ def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
         tel, now = link.telemetry(), clock.now()
         if not tel.connected or now is None:
             return None
-        t = autopilot_stamp(tel.t_boot_s, tel.attitude_age_s, now, clock_kind == "sim")
+        t = autopilot_stamp(tel.t_boot_attitude_s, tel.attitude_age_s, now, clock_kind == "sim")
         if t is None:
             return None
         return AttitudeSample(t, tel.roll_rad, tel.pitch_rad)

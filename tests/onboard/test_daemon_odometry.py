@@ -56,3 +56,18 @@ def test_sim_clock_follower_extrapolates_at_most_the_cap_and_never_runs_backward
     clock.observe(10.2)  # older than the clock: ignored
     clock.update(10.3, speedup=100.0, lockstep=False)  # a late SimClock: ignored
     assert clock.now() >= t
+
+
+def test_levelling_attitude_carries_the_attitude_messages_own_stamp():
+    """Roll and pitch are stamped with ATTITUDE's ``time_boot_ms``, not with the newer
+    LOCAL_POSITION_NED's (levelling pairs them with camera frames by that stamp)."""
+    from types import SimpleNamespace
+
+    from onboard.daemon.cli import _attitude
+
+    tel = _telemetry(2000, 2040, yaw=0.5, yaw_rate=0.0, v_ned=(1.0, 0.0, 0.0))
+    assert tel.t_boot_s == pytest.approx(2.04)  # the newest autopilot time is the velocity's
+    link = SimpleNamespace(telemetry=lambda: tel)
+    clock = SimpleNamespace(now=lambda: 2.05)
+    sample = _attitude(link, clock, "sim")()
+    assert sample is not None and sample.t_s == pytest.approx(2.0)
