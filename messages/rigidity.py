@@ -10,7 +10,7 @@ agent ``i`` that measures it, which sends the blocks of ``j`` and ``k`` to them)
 
 from __future__ import annotations
 
-from messages.codec import Payload
+from messages.codec import F64Array, Payload
 
 Vec3 = tuple[float, float, float]
 
@@ -28,19 +28,24 @@ class AngleLocalizationShare(Payload, tag="peer.angle_localization"):
 
 
 class RigidityEigenShare(Payload, tag="peer.rigidity_eigen"):
-    """Distributed power iteration (``onboard.estimation.distributed_eigen``): the sender's
-    eigenvector block ``v``, its PI-consensus state ``(x, z)`` of the averaged quantities, its
-    eigenvalue estimate, and per target its angles' blocks of ``M_w v`` (``mv``) and of
-    ``d(v^T M_w v)/dp`` (``form_grad_ned``); ``round``: how many rounds the sender has taken
-    (receivers wait for their neighbours' previous round)."""
+    """One round of the distributed subspace iteration (``onboard.estimation.distributed_eigen``,
+    ``k`` vectors per agent): the sender's eigenvalue estimate, the round it has taken
+    (receivers wait for their neighbours' previous round) and two float64 vectors, laid out by
+    ``onboard.rigidity_layer.EigenWire``:
 
-    v: Vec3
-    x: list[float]
-    z: list[float]
+    * ``state``: ``[x (n_c) | z (n_c) | V_i (3 k, row-major) | degree | sbar]``: the PI-consensus
+      state of the averaged quantities, the sender's block of the ``k`` vectors, how many
+      neighbours it heard and its max-consensus state;
+    * ``per_target``: for each ``targets[m]``, ``[M_w V block (3 k) | weighted-degree part |
+      form-gradient block (3)]``: the sender's angles' contributions to that agent's sums
+      (``d(y^T M_w y)/dp`` for the blended Ritz vectors, in the estimated frame).
+
+    A share whose lengths do not match the receiver's ``k`` is malformed."""
+
     lambda_hat: float
     targets: list[int]
-    mv: list[Vec3]
-    form_grad_ned: list[Vec3]
+    state: F64Array
+    per_target: F64Array
     round: int = 0
 
 

@@ -24,8 +24,8 @@ rigidity-maintenance, collision and tracking actions of paper 003, for one vehic
    (paper 003 follows the smallest mode's gradient alone: ``rigidity_softmin_tau = 0``).
 
 It publishes :class:`messages.rigidity.AngleLocalizationShare` and
-:class:`messages.rigidity.RigidityEigenShare` every step; the subspace iteration's extra
-columns ride in the latter's ``x`` (:class:`EigenWire`).
+:class:`messages.rigidity.RigidityEigenShare` every step (the latter's layout:
+:class:`EigenWire`).
 """
 
 from __future__ import annotations
@@ -92,81 +92,69 @@ def _vecs(a: FloatArray) -> list[Vec3]:
 
 
 class EigenWire:
-    """Where the subspace iteration's extra data rides in :class:`RigidityEigenShare`.
+    """The layout of :class:`RigidityEigenShare`'s two vectors for ``k`` vectors per agent.
 
-    ``v`` and ``mv`` carry column 0 of ``V_i`` and of the per-target blocks of ``M_w V``; ``z``
-    is the PI integral state; ``x`` is ``[consensus x (n_c) | degree | sbar | V_i columns
-    1.. (3 (k - 1)) | per target: M_w V columns 1.. (3 (k - 1)), weighted-degree part (1)]``
-    (:mod:`onboard.estimation.distributed_eigen`). A payload whose lengths do not match ``k``
-    is malformed."""
+    ``state`` is ``[x (n_c) | z (n_c) | V_i (3 k, row-major) | degree | sbar]`` and
+    ``per_target``, per target, ``[M_w V block (3 k, row-major) | weighted-degree part |
+    form-gradient block (3)]`` (:mod:`onboard.estimation.distributed_eigen`). A payload whose
+    lengths do not match ``k`` is malformed."""
 
     def __init__(self, k: int) -> None:
         self.k = k
         self.n_c = n_consensus(k)
-        self.per_target = 3 * (k - 1) + 1
+        self.state_length = 2 * self.n_c + 3 * k + 2
+        self.per_target = 3 * k + 4
 
-    def length(self, n_targets: int) -> int:
-        return self.n_c + 2 + 3 * (self.k - 1) + n_targets * self.per_target
+    def fits(self, msg: RigidityEigenShare) -> bool:
+        """Whether the payload's lengths match this layout."""
+        return (
+            len(msg.state) == self.state_length
+            and len(msg.per_target) == len(msg.targets) * self.per_target
+        )
 
     def pack(
         self,
         x: FloatArray,
+        z: FloatArray,
+        v: FloatArray,
         degree: int,
         s_bar: float,
-        v: FloatArray,
         mv: FloatArray,
         s_parts: FloatArray,
-    ) -> list[float]:
-        """``v`` ``(3, k)``, ``mv`` ``(M, 3, k)`` and ``s_parts`` ``(M,)`` for the ``M`` targets."""
-        tail = np.concatenate(
-            [mv[:, :, 1:].reshape(len(mv), 3 * (self.k - 1)), s_parts[:, None]], axis=1
-        )
-        return [
-            *x.tolist(),
-            float(degree),
-            s_bar,
-            *v[:, 1:].ravel().tolist(),
-            *tail.ravel().tolist(),
-        ]
+        form: FloatArray,
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(state, per_target)`` from the consensus state ``x, z``, ``V_i`` ``(3, k)``, and per
+        target ``(M,)`` its block of ``M_w V`` ``(M, 3, k)``, weighted-degree part ``(M,)`` and
+        form-gradient block ``(M, 3)``."""
+        state = np.concatenate((x, z, v.ravel(), (float(degree), s_bar)))
+        per = np.concatenate((mv.reshape(len(mv), 3 * self.k), s_parts[:, None], form), axis=1)
+        return state, per.ravel()
 
     def unpack(self, msgs: list[RigidityEigenShare]) -> tuple[Neighbours, FloatArray]:
         """The senders' consensus states and their ``V_j`` ``(K, 3, k)``."""
         n_c, k = self.n_c, self.k
         if not msgs:
             return Neighbours.none(n_c), np.zeros((0, 3, k))
-        head = n_c + 2 + 3 * (k - 1)
-        # one conversion: [consensus x | degree | sbar | V columns 1.. | V column 0 | z]
-        rows = np.array([[*m.x[:head], *m.v, *m.z] for m in msgs], dtype=float)
-        v = np.concatenate(
-            (
-                rows[:, head : head + 3, None],
-                rows[:, n_c + 2 : head].reshape(len(msgs), 3, k - 1),
-            ),
-            axis=2,
-        )
-        nb = Neighbours(rows[:, :n_c], rows[:, head + 3 :], rows[:, n_c], rows[:, n_c + 1])
-        return nb, v
+        rows = np.stack([m.state for m in msgs])
+        v = rows[:, 2 * n_c : 2 * n_c + 3 * k].reshape(len(msgs), 3, k)
+        return Neighbours(rows[:, :n_c], rows[:, n_c : 2 * n_c], rows[:, -2], rows[:, -1]), v
 
     def addressed_to(
         self, msgs: list[RigidityEigenShare], me: int
     ) -> tuple[FloatArray, float, FloatArray]:
         """Sums of what the senders addressed to ``me``: blocks of ``M_w V`` ``(3, k)``,
         weighted-degree parts and form-gradient blocks ``(3,)``."""
-        head = self.n_c + 2 + 3 * (self.k - 1)
         per = self.per_target
-        parts = []
-        for m in msgs:
-            if me in m.targets:
-                t = m.targets.index(me)
-                start = head + t * per
-                parts.append([*m.form_grad_ned[t], *m.mv[t], *m.x[start : start + per]])
+        parts = [
+            m.per_target[(t := m.targets.index(me)) * per : (t + 1) * per]
+            for m in msgs
+            if me in m.targets
+        ]
         if not parts:
             return np.zeros((3, self.k)), 0.0, np.zeros(3)
-        total = np.array(parts).sum(axis=0)
-        mv = np.concatenate(
-            (total[3:6, None], total[6 : 6 + 3 * (self.k - 1)].reshape(3, -1)), axis=1
-        )
-        return mv, float(total[-1]), total[:3]
+        total = np.sum(parts, axis=0)
+        n = 3 * self.k
+        return total[:n].reshape(3, self.k), float(total[n]), total[n + 1 :]
 
 
 class RigidityLayer:
@@ -227,12 +215,7 @@ class RigidityLayer:
                 return False
             self._loc_in[j] = msg
         elif isinstance(msg, RigidityEigenShare):
-            n = len(msg.targets)
-            if not (
-                len(msg.mv) == len(msg.form_grad_ned) == n
-                and len(msg.x) == self.wire.length(n)
-                and len(msg.z) == self.wire.n_c
-            ):
+            if not self.wire.fits(msg):
                 return False
             self._eig_in[j] = msg
         return True
@@ -443,23 +426,22 @@ class RigidityLayer:
         x, z = eig.share()
         # after a restart (the estimator diverged) there is no consensus state to send until
         # its next round: an empty one was counted as malformed by every neighbour
-        self._last_share = (
-            None
-            if len(x) == 0
-            else RigidityEigenShare(
+        if len(x) == 0:
+            self._last_share = None
+        else:
+            state, per = wire.pack(
+                x, z, eig.v, eig.degree, eig.s_bar, mv[1:], s_parts[1:], g_form[1:]
+            )
+            self._last_share = RigidityEigenShare(
                 sender=self.id,
                 seq=seq,
                 stamp_s=t_s,
-                v=_vec(eig.v[:, 0]),
-                x=wire.pack(x, eig.degree, eig.s_bar, eig.v, mv[1:], s_parts[1:]),
-                z=z.tolist(),
                 lambda_hat=eig.lambda_hat,
                 targets=cand,
-                mv=_vecs(mv[1:, :, 0]),
-                form_grad_ned=_vecs(g_form[1:]),
+                state=state,
+                per_target=per,
                 round=self.rounds,
             )
-        )
         if self._last_share is not None:
             outbox.append(self._last_share)
         if cfg.rigidity_eigen == "centralized":

@@ -1,9 +1,18 @@
 """The codec rejects every kind of bad payload with one error type and a reason."""
 
 import msgspec
+import numpy as np
 import pytest
 
-from messages.codec import MAX_PAYLOAD_BYTES, MessageError, Payload, decode, encode
+from messages.codec import (
+    MAX_PAYLOAD_BYTES,
+    SCHEMA_VERSION,
+    F64Array,
+    MessageError,
+    Payload,
+    decode,
+    encode,
+)
 from messages.keys import alive_key, fleet_keys, key, parse_key
 
 
@@ -97,3 +106,30 @@ def test_nonfinite_anywhere_inside_is_found_and_named(bad, where):
     assert decode(encode(Nested(sender=1, names=["x"], rows=[[1.0, 2.0]])), Nested).rows == [
         [1.0, 2.0]
     ]
+
+
+class Vector(Payload, tag="test.vector"):
+    values: F64Array
+
+
+def test_float_arrays_travel_as_bytes_and_are_validated():
+    values = np.array([1.0, -2.5, 3e-9])
+    data = encode(Vector(sender=1, values=values))
+    assert values.astype("<f8").tobytes() in data  # one bin, not a list of floats
+    np.testing.assert_array_equal(decode(data, Vector).values, values)
+    with pytest.raises(MessageError, match="nonfinite"):
+        encode(Vector(sender=1, values=np.array([0.0, np.inf])))
+    bad = [
+        ({"values": np.array([0.0, np.nan]).tobytes()}, "nonfinite"),
+        ({"values": b"\x00" * 7}, "malformed"),  # not a whole number of float64
+        ({"values": [1.0, 2.0]}, "malformed"),  # a list is not the array encoding
+    ]
+    for fields, reason in bad:
+        raw = msgspec.msgpack.encode(
+            {"type": "test.vector", "version": SCHEMA_VERSION, "sender": 1, **fields}
+        )
+        with pytest.raises(MessageError) as info:
+            decode(raw, Vector)
+        assert info.value.reason == reason
+    with pytest.raises(TypeError):
+        encode(Vector(sender=1, values=np.zeros((2, 2))))  # only 1-D arrays have an encoding
