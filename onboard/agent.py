@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable
-from typing import Literal
+from collections.abc import Callable, Iterable
+from typing import Any, Literal
 
 import msgspec
 import numpy as np
@@ -307,15 +307,19 @@ class AgentCore:
         self._seq = 0
         self.dropped: dict[str, int] = {}
         self._neighbour_set = frozenset(self.neighbours)
-        self._handlers = {
-            MotionShare: self._on_motion,
-            LocalizationState: self._on_localization,
-            BearingShare: self._on_bearings,
-            SfmEstimate: self._on_sfm,
-            ExcitationTable: self._on_excitation,
-            ConsensusState: self._on_consensus,
-            AngleLocalizationShare: self._on_rigidity,
-            RigidityEigenShare: self._on_rigidity,
+        rigidity_senders = (
+            self._neighbour_set if self.rigidity is None else self.rigidity_neighbours
+        )
+        # per payload type: its handler and who may send it (one lookup per message)
+        self._routes: dict[type, tuple[Callable[[int, Any], None], frozenset[int]]] = {
+            MotionShare: (self._on_motion, self._neighbour_set),
+            LocalizationState: (self._on_localization, self._neighbour_set),
+            BearingShare: (self._on_bearings, self._neighbour_set),
+            SfmEstimate: (self._on_sfm, self._neighbour_set),
+            ExcitationTable: (self._on_excitation, self._neighbour_set),
+            ConsensusState: (self._on_consensus, self._neighbour_set),
+            AngleLocalizationShare: (self._on_rigidity, rigidity_senders),
+            RigidityEigenShare: (self._on_rigidity, rigidity_senders),
         }
         self._cons_out: tuple[list[str], list[list[float]], list[list[float]]] = ([], [], [])
 
@@ -325,18 +329,15 @@ class AgentCore:
 
     def _receive(self, msg: Payload, t_s: float) -> None:
         j = msg.sender
-        rigidity_msg = self.rigidity is not None and isinstance(
-            msg, (AngleLocalizationShare, RigidityEigenShare)
-        )
-        if j not in (self.rigidity_neighbours if rigidity_msg else self._neighbour_set):
+        route = self._routes.get(type(msg))
+        if j not in (self._neighbour_set if route is None else route[1]):
             self._drop("not_neighbour")
             return
-        handler = self._handlers.get(type(msg))
-        if handler is None:
+        if route is None:
             self._drop("unknown_type")
             return
         self._heard[j] = t_s
-        handler(j, msg)
+        route[0](j, msg)
 
     def _on_motion(self, j: int, msg: MotionShare) -> None:
         self._motion[j] = msg
