@@ -3,47 +3,24 @@
 * one ``AgentCore.step`` of an agent with 5 neighbours (complete graph of 6, every edge
   reciprocal, so agent 0 runs 5 SfM observers: the worst case), target median < 0.2 ms;
 * baseline in the same run: a step of an agent without neighbours (the fixed overhead);
+  both timed by replaying agent 0's recorded inputs, in turn (``core_replay.py``);
 * a 20 s run of the N = 6 paper scenario and a run of N = 30 (ring + chords, 2 reciprocal and
   2 one-way bearings each), reported as multiples of real time (target N = 6: >= 20x).
 
-Usage: ``python benchmarks/bench_agent.py [--duration 20] [--duration30 4]``.
+Usage: ``python benchmarks/bench_agent.py [--duration 20] [--duration30 4] [--repeats 7]``.
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
 
 import numpy as np
+from core_replay import describe, record, time_cases
 
 from onboard.agent import AgentConfig
 from sim.runner import RunnerConfig, run
 from sim.scenarios import run_scenario
-
-
-def _time_steps(configs, p0, yaw0, agent: int, duration: float) -> list[float]:
-    """Run the team with the runner and time agent ``agent``'s steps."""
-    import sim.runner as runner_mod
-
-    times: list[float] = []
-    base = runner_mod.AgentCore
-
-    class Timed(base):  # type: ignore[misc, valid-type]
-        def step(self, t_s, own, inbox=()):
-            if self.id != agent:
-                return super().step(t_s, own, inbox)
-            t0 = time.perf_counter()
-            out = super().step(t_s, own, inbox)
-            times.append(time.perf_counter() - t0)
-            return out
-
-    runner_mod.AgentCore = Timed
-    try:
-        run(configs, p0, yaw0, RunnerConfig(duration_s=duration, seed=0))
-    finally:
-        runner_mod.AgentCore = base
-    return times[50:]
 
 
 def _ring_team(n: int, seed: int = 0):
@@ -77,6 +54,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--duration30", type=float, default=4.0)
+    ap.add_argument("--repeats", type=int, default=7, help="replays of each recorded run")
     args = ap.parse_args()
 
     # one step, 5 neighbours
@@ -97,18 +75,19 @@ def main() -> None:
         )
         for i in range(n)
     ]
-    busy = _time_steps(cfgs, p0, yaw0, agent=0, duration=2.0)
-    alone_cfg = [AgentConfig(agent_id=0, n_agents=1, edges=(), mode="active")]
-    alone = _time_steps(alone_cfg, p0[:1], yaw0[:1], agent=0, duration=2.0)
-    m_busy, m_alone = statistics.median(busy), statistics.median(alone)
-    print(
-        f"core step, 5 neighbours (5 observers): median {m_busy * 1e3:.3f} ms "
-        f"(p90 {np.percentile(busy, 90) * 1e3:.3f} ms)  target < 0.2 ms"
-    )
-    print(
-        f"baseline core step, no neighbours:     median {m_alone * 1e3:.3f} ms  "
-        f"ratio {m_busy / m_alone:.1f}x"
-    )
+    alone_cfg = AgentConfig(agent_id=0, n_agents=1, edges=(), mode="active")
+    cases = {
+        "busy": (cfgs[0], record(cfgs, p0, yaw0, RunnerConfig(duration_s=2.0, seed=0))),
+        "alone": (
+            alone_cfg,
+            record([alone_cfg], p0[:1], yaw0[:1], RunnerConfig(duration_s=2.0, seed=0)),
+        ),
+    }
+    t = time_cases(cases, args.repeats, skip=50)
+    ratio = np.median(np.median(t["busy"], axis=1) / np.median(t["alone"], axis=1))
+    print(f"core step (agent 0, {args.repeats} replays each, benchmarks/core_replay.py)")
+    print(f"  5 neighbours (5 observers): {describe(t['busy'])}  target < 0.2 ms")
+    print(f"  baseline, no neighbours:    {describe(t['alone'])}; ratio {ratio:.1f}x")
 
     t0 = time.perf_counter()
     run_scenario("scale-formation-active", seed=0, duration_s=args.duration)
