@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from onboard.geometry import FloatArray, IntArray, rot_z
+from onboard.geometry import FloatArray, IntArray
 from onboard.rigidity.angle import angle_function, angle_rigidity_matrix
 
 K_ANGLE = 4.0
@@ -204,9 +204,12 @@ class AngleLocalizer:
         self, dt: float, v_body: ArrayLike, yaw_odometry_rad: float, grad_ned: ArrayLike
     ) -> None:
         """``phat' = R_z(psihat) u - grad_i J`` (eq. 11 plus the robot's own motion)."""
-        v_ned = rot_z(self.yaw_hat(yaw_odometry_rad)) @ np.asarray(v_body, dtype=float)
-        if not self.yaw_known:
-            v_ned = np.zeros(3)
+        v_ned: FloatArray | float = 0.0  # no yaw, no direction to move the estimate in
+        if self.yaw_known:
+            psi = self.yaw_hat(yaw_odometry_rad)
+            c, s = math.cos(psi), math.sin(psi)
+            u_x, u_y, u_z = (float(x) for x in v_body)  # R_z(psi) u on three floats
+            v_ned = np.array((c * u_x - s * u_y, s * u_x + c * u_y, u_z))
         p_new = self.p_hat_ned + dt * (v_ned - np.asarray(grad_ned, dtype=float))
         if np.isfinite(p_new).all():  # a non-finite input leaves the estimate as it was
             self.p_hat_ned = p_new
