@@ -128,8 +128,11 @@ def softmin_weights(theta: ArrayLike, tau: float) -> FloatArray:
         out = np.zeros(len(th))
         out[int(np.argmin(th))] = 1.0
         return out
-    e = np.exp(-(th - th.min()) / tau)
-    return e / e.sum()
+    values = th.tolist()  # a handful of eigenvalues: plain floats beat numpy's call overhead
+    low = min(values)
+    e = [math.exp((low - t) / tau) for t in values]
+    total = math.fsum(e)
+    return np.array([x / total for x in e])
 
 
 def rigidity_potential(lam: float, gains: MaintenanceGains) -> tuple[float, float]:
