@@ -17,7 +17,7 @@ from groundstation.gcs.monitor import MonitorConfig, render, snapshot
 from groundstation.gcs.standin import StandinConfig, scripted_status
 from groundstation.gcs.zenoh_listener import ZenohState, classify
 from messages import mavlink as mv
-from messages.codec import MessageError, encode
+from messages.codec import SCHEMA_VERSION, MessageError, encode
 from messages.sim import SimClock
 
 
@@ -148,7 +148,7 @@ def test_classify_accepts_ours_and_names_every_rejection():
             classify("alpha", key, data)
         assert exc.value.reason == reason, key
     with pytest.raises(MessageError) as exc:
-        classify("alpha", "bf/alpha/1/status", encode_version(2))
+        classify("alpha", "bf/alpha/1/status", encode_version(SCHEMA_VERSION + 1))
     assert exc.value.reason == "version"
 
 
