@@ -64,6 +64,8 @@ class CameraModel:
     mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     t_body_cam_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     r_body_cam: FloatArray = field(init=False, repr=False, compare=False)
+    _principal: FloatArray = field(init=False, repr=False, compare=False)
+    _focal: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
@@ -78,6 +80,9 @@ class CameraModel:
             )
         roll, pitch, yaw = (math.radians(a) for a in self.mount_rpy_deg)
         object.__setattr__(self, "r_body_cam", rot_rpy(roll, pitch, yaw) @ BODY_FROM_CAM_FORWARD)
+        # (cx, cy) and (fx, fy) as arrays: pixel <-> normalized in two broadcast operations
+        object.__setattr__(self, "_principal", np.array([self.cx, self.cy]))
+        object.__setattr__(self, "_focal", np.array([self.fx, self.fy]))
 
     @classmethod
     def from_fov(cls, width: int = 640, height: int = 480, hfov_deg: float = 90.0) -> CameraModel:
@@ -153,14 +158,13 @@ class CameraModel:
 
     def pixels_to_normalized(self, uv: ArrayLike) -> FloatArray:
         """Pixels ``(..., 2)`` -> undistorted normalized coordinates ``(..., 2)`` (``K^-1`` + undistort)."""
-        uv = np.asarray(uv, dtype=float)
-        xd = np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy], -1)
-        return self.undistort(xd)
+        xd = (np.asarray(uv, dtype=float) - self._principal) / self._focal
+        return self.undistort(xd) if any(self.dist) else xd
 
     def normalized_to_pixels(self, xy_norm: ArrayLike) -> FloatArray:
         """Undistorted normalized coordinates -> pixels (distort + ``K``)."""
-        xd = self.distort(xy_norm)
-        return np.stack([self.fx * xd[..., 0] + self.cx, self.fy * xd[..., 1] + self.cy], axis=-1)
+        xd = self.distort(xy_norm) if any(self.dist) else np.asarray(xy_norm, dtype=float)
+        return xd * self._focal + self._principal
 
     # --- rays ---------------------------------------------------------------------------------
 
@@ -183,7 +187,18 @@ class CameraModel:
 
     def bearing_range_body(self, x_cam: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Unit bearing (body FRD, from the body origin) and range (m) of camera-frame points."""
-        x_body = self.cam_to_body(x_cam)
+        x = np.asarray(x_cam, dtype=float)
+        if x.shape == (3,):  # one point (a detection): scalar arithmetic, fewer numpy calls
+            xc = x.tolist()
+            xb = [
+                sum(r * v for r, v in zip(row, xc, strict=True)) + t
+                for row, t in zip(self.r_body_cam.tolist(), self.t_body_cam_m, strict=True)
+            ]
+            rng = math.sqrt(xb[0] * xb[0] + xb[1] * xb[1] + xb[2] * xb[2])
+            if rng == 0.0:
+                return np.full(3, np.nan), np.float64(0.0)
+            return np.array([v / rng for v in xb]), np.float64(rng)
+        x_body = self.cam_to_body(x)
         rng = np.linalg.norm(x_body, axis=-1)
         return x_body / rng[..., None], rng
 

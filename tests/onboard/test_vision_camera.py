@@ -80,3 +80,16 @@ def test_invalid_intrinsics_rejected() -> None:
         CameraModel(640, 480, -1.0, 320, 320, 240)
     with pytest.raises(ValueError):
         CameraModel(0, 480, 320, 320, 320, 240)
+
+
+def test_bearing_range_of_one_point_matches_the_vectorized_form() -> None:
+    cam = CameraModel(
+        640, 480, 300.0, 310.0, 322.0, 238.0, DIST, (3.0, -20.0, 10.0), (0.1, -0.05, 0.02)
+    )
+    pts = np.random.default_rng(4).normal(0.0, 3.0, (20, 3)) + np.array([0.0, 0.0, 8.0])
+    bearings, ranges = cam.bearing_range_body(pts)
+    for p, b, r in zip(pts, bearings, ranges, strict=True):
+        b1, r1 = cam.bearing_range_body(p)
+        assert b1.shape == (3,)
+        np.testing.assert_allclose(b1, b, rtol=0, atol=1e-15)
+        assert float(r1) == pytest.approx(float(r), rel=1e-15)
