@@ -23,16 +23,20 @@ consensus set is found (``eps`` = current outlier ratio, ``n = 5``). The final m
 least-squares ellipse fit of Fitzgibbon et al. (paper 002 ref. [24]) on the inliers, in the
 numerically stable form of Halir and Flusser. :func:`robust_ellipse` tries that direct fit on all
 points first and runs RANSAC only when it leaves too many outliers (the common, unoccluded case
-then costs one fit instead of hundreds of hypotheses).
+then costs one fit instead of hundreds of hypotheses); :func:`robust_ellipses` does it for several
+point sets with shared numpy calls.
 
-Pure numpy, vectorized over hypotheses.
+Numpy, vectorized over hypotheses; the 3x3 solves go through OpenCV (``cv2.solve``, ``cv2.eigen``,
+``cv2.eigenNonSymmetric``), whose call overhead is a fraction of ``numpy.linalg``'s.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -42,6 +46,9 @@ CONIC_SAMPLE_SIZE = 5
 # Q = [[a, b/2, d/2], [b/2, c, e/2], [d/2, e/2, f]] from (a, b, c, d, e, f), row by row.
 _CONIC_INDEX = np.array([0, 1, 3, 1, 2, 4, 3, 4, 5])
 _CONIC_SCALE = np.array([1.0, 0.5, 0.5, 0.5, 1.0, 0.5, 0.5, 0.5, 1.0])
+_QUAD_I, _QUAD_J = [0, 0, 1], [0, 1, 1]  # x^2, xy, y^2
+# Rows of C1^-1 M for the constraint 4ac - b^2 (Halir-Flusser), applied to M's reversed rows.
+_INV_C1_DIAG = np.array([[0.5], [-1.0], [0.5]])
 
 
 def ransac_iterations(p_success: float, outlier_ratio: float, n_sample: int) -> float:
@@ -157,10 +164,18 @@ def fit_conic_exact(points: ArrayLike) -> FloatArray:
 
 def _normalizer(points: FloatArray) -> FloatArray:
     """Similarity ``T`` moving the points' centroid to 0 and their RMS radius to sqrt(2)."""
-    mean = points.mean(axis=0)
-    rms = math.sqrt(float(np.mean(np.sum((points - mean) ** 2, axis=1)))) or 1.0
+    return _normalized(points)[0]
+
+
+def _normalized(points: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(T, T applied to points)`` for :func:`_normalizer`'s ``T`` (the points ``(N, 2)``)."""
+    mean = np.add.reduce(points, axis=0) / points.shape[0]
+    dev = points - mean
+    rms = math.sqrt(float(np.vdot(dev, dev)) / points.shape[0]) or 1.0
     s = math.sqrt(2.0) / rms
-    return np.array([[s, 0.0, -s * mean[0]], [0.0, s, -s * mean[1]], [0.0, 0.0, 1.0]])
+    mu, mv = float(mean[0]), float(mean[1])
+    t = np.array([[s, 0.0, -s * mu], [0.0, s, -s * mv], [0.0, 0.0, 1.0]])
+    return t, dev * s
 
 
 def _apply(t: FloatArray, points: FloatArray) -> FloatArray:
@@ -183,24 +198,55 @@ def fit_ellipse_direct(points: ArrayLike) -> FloatArray:
 
 def _fit_direct_conditioned(p: FloatArray) -> FloatArray:
     """:func:`fit_ellipse_direct` of points already centred and scaled to about unit size."""
-    d = _design(p)
-    s = d.T @ d
-    s1, s2, s3 = s[:3, :3], s[:3, 3:], s[3:, 3:]
-    try:
-        tm = -np.linalg.solve(s3, s2.T)
-    except np.linalg.LinAlgError:
-        raise ValueError("degenerate points for an ellipse fit") from None
-    m = s1 + s2 @ tm
-    m = np.stack([m[2] / 2.0, -m[1], m[0] / 2.0])
-    w, v = np.linalg.eig(m)
-    v = np.real(v)
-    cond = 4.0 * v[0] * v[2] - v[1] ** 2
-    ok = np.flatnonzero(cond > 0.0)
-    if ok.size == 0:
+    return _fit_direct_design(_design_2d(p))
+
+
+def _design_2d(p: FloatArray) -> FloatArray:
+    """:func:`_design` of points ``(N, 2)`` (rows ``x^2, xy, y^2, x, y, 1``), in fewer calls."""
+    d = np.ones((p.shape[0], 6))
+    d[:, :3] = p[:, _QUAD_I] * p[:, _QUAD_J]
+    d[:, 3:5] = p
+    return d
+
+
+def _fit_direct_design(d: FloatArray) -> FloatArray:
+    """Halir-Flusser direct ellipse fit from the design matrix ``d`` (rows of :func:`_design`)
+    of conditioned points; the unit-norm conic."""
+    return _fit_direct_scatter(d.T @ d)
+
+
+def _fit_direct_scatter(s: FloatArray) -> FloatArray:
+    """Halir-Flusser direct ellipse fit (Fitzgibbon, paper 002 ref. [24]) from the scatter
+    matrix ``s = d^T d`` (6 x 6) of conditioned points; the unit-norm conic with a positive
+    2x2 block."""
+    ok, sol = cv2.solve(s[3:, 3:], s[3:, :3], flags=cv2.DECOMP_LU)
+    if not ok:
+        raise ValueError("degenerate points for an ellipse fit")
+    tm = -sol
+    m = (s[:3, :3] + s[:3, 3:] @ tm)[::-1] * _INV_C1_DIAG
+    # M = C1^-1 R with R (reduced scatter) positive semi-definite: its eigenvalues are real
+    # (those of R^-1 C1 inverted), so the real-only solver suffices; vectors come as rows.
+    w, v = cv2.eigenNonSymmetric(m)
+    vr = v.tolist()
+    wr = np.abs(w).ravel().tolist()
+    # the ellipse is the eigenvector with 4ac - b^2 > 0 (of smallest |eigenvalue| if several)
+    cands = [k for k in range(3) if 4.0 * vr[k][0] * vr[k][2] - vr[k][1] ** 2 > 0.0]
+    if not cands:
         raise ValueError("no ellipse fits these points")
-    a1 = v[:, ok[np.argmin(np.abs(np.real(w[ok])))]]
-    q = conic_matrix(np.concatenate([a1, tm @ a1]))
-    return q / np.linalg.norm(q)
+    a1 = vr[min(cands, key=lambda k: wr[k])]
+    a, b, c = a1
+    dd, e, f = (tm @ np.array(a1)).tolist()
+    norm = math.sqrt(a * a + c * c + f * f + 0.5 * (b * b + dd * dd + e * e))
+    norm = norm if a + c > 0.0 else -norm  # sign: positive 2x2 block (the solver's is arbitrary)
+    return np.array([[a, 0.5 * b, 0.5 * dd], [0.5 * b, c, 0.5 * e], [0.5 * dd, 0.5 * e, f]]) / norm
+
+
+def _sampson_design(q: FloatArray, p: FloatArray, d: FloatArray) -> FloatArray:
+    """:func:`sampson_distance` of one conic ``q`` to points ``p (N, 2)`` whose design matrix
+    ``d`` is known (the algebraic residual is then one product)."""
+    coef = np.array([q[0, 0], 2.0 * q[0, 1], q[1, 1], 2.0 * q[0, 2], 2.0 * q[1, 2], q[2, 2]])
+    g = p @ q[:2, :2] + q[2, :2]  # half the gradient
+    return np.abs(d @ coef) / np.maximum(2.0 * np.hypot(g[:, 0], g[:, 1]), 1e-300)
 
 
 def sampson_distance(q: ArrayLike, points: ArrayLike) -> FloatArray:
@@ -227,7 +273,7 @@ class RansacEllipse:
 
     @property
     def inlier_ratio(self) -> float:
-        return float(np.mean(self.inliers))
+        return np.count_nonzero(self.inliers) / max(self.inliers.size, 1)
 
 
 def ransac_ellipse(
@@ -310,21 +356,102 @@ def robust_ellipse(
     pts = np.asarray(points, dtype=float)
     if pts.shape[0] < CONIC_SAMPLE_SIZE:
         raise ValueError(f"need at least 5 points, got {pts.shape[0]}")
-    t = _normalizer(pts)
-    p = _apply(t, pts)
+    t, p = _normalized(pts)
     thr = threshold * t[0, 0]
+    d = _design_2d(p)
     try:
-        q = _fit_direct_conditioned(p)
+        q = _fit_direct_design(d)
     except ValueError:
         q = None
     if q is not None:
-        inliers = sampson_distance(q, p) < thr
+        inliers = _sampson_design(q, p, d) < thr
         if inliers.all():  # the refit on the inliers would be this very fit
             q_out = t.T @ q @ t
             return RansacEllipse(conic=q_out / np.linalg.norm(q_out), inliers=inliers, iterations=0)
         if float(np.mean(inliers)) >= direct_inlier_ratio:
             return _refit_on_inliers(p, t, inliers, thr, 0)
     return ransac_ellipse(pts, threshold, rng, p_success=p_success, max_iterations=max_iterations)
+
+
+def robust_ellipses(
+    point_sets: Sequence[FloatArray],
+    threshold: float,
+    rng: np.random.Generator,
+    *,
+    direct_inlier_ratio: float = 0.95,
+    p_success: float = 0.99,
+    max_iterations: int = 256,
+) -> list[RansacEllipse | None]:
+    """:func:`robust_ellipse` of each point set ``(N_k, 2)``, ``None`` where it raises (paper
+    002: the direct fit of ref. [24], adaptive RANSAC of eq. 35 where it leaves outliers).
+
+    The conditioning, design matrices, scatter matrices and Sampson distances of all the sets
+    are computed together (a few numpy calls for all instead of for each: the per-call cost
+    dominates at a few hundred points); each set's direct fit is then solved from its scatter
+    matrix, and a set left with too many outliers goes on alone (refit or RANSAC, in order,
+    drawing from ``rng``). Same results as :func:`robust_ellipse` up to rounding.
+    """
+    out: list[RansacEllipse | None] = [None] * len(point_sets)
+    todo = [k for k, pts in enumerate(point_sets) if len(pts) >= CONIC_SAMPLE_SIZE]
+    if not todo:
+        return out
+    sizes = np.array([len(point_sets[k]) for k in todo])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    seg = np.repeat(np.arange(len(todo)), sizes)
+    pts = np.concatenate([np.asarray(point_sets[k], dtype=float) for k in todo])
+    # conditioning of each set (as _normalized): centroid to 0, RMS radius to sqrt(2)
+    mean = np.add.reduceat(pts, starts, axis=0) / sizes[:, None]
+    dev = pts - mean[seg]
+    rms = np.sqrt(np.add.reduceat(np.einsum("ij,ij->i", dev, dev), starts) / sizes)
+    scale = math.sqrt(2.0) / np.where(rms > 0.0, rms, 1.0)
+    p = dev * scale[seg][:, None]
+    d = _design_2d(p)
+    scatter = np.add.reduceat(d[:, :, None] * d[:, None, :], starts, axis=0)
+    conics = np.zeros((len(todo), 3, 3))
+    fitted = np.zeros(len(todo), dtype=bool)
+    for j, s_j in enumerate(scatter):
+        try:
+            conics[j] = _fit_direct_scatter(s_j)
+            fitted[j] = True
+        except ValueError:
+            pass
+    # Sampson distance of every point to its own set's conic (as _sampson_design)
+    q = conics[seg]
+    coef = np.stack(
+        [q[:, 0, 0], 2.0 * q[:, 0, 1], q[:, 1, 1], 2.0 * q[:, 0, 2], 2.0 * q[:, 1, 2], q[:, 2, 2]],
+        axis=1,
+    )
+    g = np.einsum("ni,nij->nj", p, q[:, :2, :2]) + q[:, 2, :2]
+    dist = np.abs(np.einsum("ij,ij->i", d, coef)) / np.maximum(
+        2.0 * np.hypot(g[:, 0], g[:, 1]), 1e-300
+    )
+    thr = threshold * scale
+    inliers = dist < thr[seg]
+    counts = np.add.reduceat(inliers, starts)
+    for j, k in enumerate(todo):
+        s = float(scale[j])
+        mu, mv = float(mean[j, 0]), float(mean[j, 1])
+        t = np.array([[s, 0.0, -s * mu], [0.0, s, -s * mv], [0.0, 0.0, 1.0]])
+        lo, hi = int(starts[j]), int(starts[j] + sizes[j])
+        try:
+            if fitted[j] and counts[j] == sizes[j]:
+                q_out = t.T @ conics[j] @ t
+                out[k] = RansacEllipse(
+                    conic=q_out / np.linalg.norm(q_out), inliers=inliers[lo:hi], iterations=0
+                )
+            elif fitted[j] and counts[j] / sizes[j] >= direct_inlier_ratio:
+                out[k] = _refit_on_inliers(p[lo:hi], t, inliers[lo:hi], float(thr[j]), 0)
+            else:
+                out[k] = ransac_ellipse(
+                    point_sets[k],
+                    threshold,
+                    rng,
+                    p_success=p_success,
+                    max_iterations=max_iterations,
+                )
+        except ValueError:
+            out[k] = None
+    return out
 
 
 def circle_conic(center_cam: ArrayLike, normal_cam: ArrayLike, radius: float) -> FloatArray:
@@ -351,19 +478,29 @@ def disc_poses_from_conic(q: ArrayLike, radius: float) -> tuple[FloatArray, Floa
     toward the camera (``n . c < 0``). Raises ``ValueError`` if ``q`` is not the conic of an ellipse.
     """
     q = np.asarray(q, dtype=float)
-    q = 0.5 * (q + q.T)
-    w, v = np.linalg.eigh(q)
-    if np.sum(w > 0.0) == 1:
-        w, v = -w[::-1], v[:, ::-1]
+    ok, w_desc, v_rows = cv2.eigen(0.5 * (q + q.T))  # eigenvalues descending, vectors as rows
+    if not ok:
+        raise ValueError("eigen-decomposition failed")
+    w = w_desc.ravel()[::-1].tolist()  # ascending, as numpy's eigh
+    vecs = v_rows[::-1].tolist()
+    if sum(x > 0.0 for x in w) == 1:
+        w, vecs = [-x for x in w[::-1]], vecs[::-1]
     if not (w[0] < 0.0 < w[1] <= w[2]):
         raise ValueError("conic does not have the signature of an imaged circle")
     l2, l0, l1 = w
-    q2, q1 = v[:, 0], v[:, 2]
+    q2, q1 = vecs[0], vecs[2]
     a = math.sqrt((l1 - l0) / (l1 - l2))
     b = math.sqrt((l0 - l2) / (l1 - l2))
-    signs = np.array([1.0, -1.0])[:, None]
-    normals = a * q1[None, :] + signs * b * q2[None, :]
-    centers = radius / math.sqrt(-l1 * l2) * (l2 * a * q1[None, :] + signs * l1 * b * q2[None, :])
-    centers *= np.where(centers[:, 2:3] < 0.0, -1.0, 1.0)
-    normals *= np.where(np.sum(normals * centers, axis=1, keepdims=True) > 0.0, -1.0, 1.0)
-    return centers, normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    k = radius / math.sqrt(-l1 * l2)
+    centers, normals = [], []
+    for sign in (1.0, -1.0):
+        c = [k * (l2 * a * u + sign * l1 * b * v) for u, v in zip(q1, q2, strict=True)]
+        n = [a * u + sign * b * v for u, v in zip(q1, q2, strict=True)]
+        if c[2] < 0.0:
+            c = [-x for x in c]
+        n_len = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if n[0] * c[0] + n[1] * c[1] + n[2] * c[2] > 0.0:
+            n_len = -n_len
+        centers.append(c)
+        normals.append([x / n_len for x in n])
+    return np.array(centers), np.array(normals)

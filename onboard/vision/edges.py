@@ -17,6 +17,9 @@ from numpy.typing import ArrayLike
 
 from onboard.geometry import FloatArray
 
+_RIGHT = np.array([1.0, -1.0])
+_LEFT = -_RIGHT
+
 
 def refine_edge_points(
     score: np.ndarray,
@@ -35,43 +38,84 @@ def refine_edge_points(
     """
     p = np.asarray(points_px, dtype=np.float32).reshape(-1, 2)
     n = np.asarray(normals, dtype=np.float32).reshape(-1, 2)
-    offsets = np.arange(-reach_in_px, reach_out_px + 1e-6, step_px, dtype=np.float32)
+    offsets = profile_offsets(reach_in_px, reach_out_px, step_px)
     if p.shape[0] == 0 or offsets.size < 2:
         return p.astype(float), np.zeros(p.shape[0], dtype=bool)
-    sx = p[:, None, 0] + offsets[None, :] * n[:, None, 0]
-    sy = p[:, None, 1] + offsets[None, :] * n[:, None, 1]
-    prof = cv2.remap(
+    shift, ok = profile_crossings(sample_profiles(score, p, n, offsets), offsets, min_contrast)
+    return p.astype(float) + shift[:, None] * n.astype(float), ok
+
+
+def profile_offsets(reach_in_px: float, reach_out_px: float, step_px: float) -> np.ndarray:
+    """Sample positions (float32, px) along a normal: ``-reach_in_px`` to ``reach_out_px``."""
+    return np.arange(-reach_in_px, reach_out_px + 1e-6, step_px, dtype=np.float32)
+
+
+def sample_profiles(
+    score: np.ndarray, points_px: np.ndarray, normals: np.ndarray, offsets: np.ndarray
+) -> np.ndarray:
+    """Bilinear samples ``(N, S)`` (float32) of ``score`` at ``points + offsets x normals``
+    (points and normals ``(N, 2)`` float32); the image edge is replicated."""
+    return sample_profiles_xy(
+        score, points_px[:, 0], points_px[:, 1], normals[:, 0], normals[:, 1], offsets
+    )
+
+
+def sample_profiles_xy(
+    score: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    offsets: np.ndarray,
+) -> np.ndarray:
+    """:func:`sample_profiles` with the points and normals as coordinate vectors ``(N,)``."""
+    sx = x[:, None] + offsets[None, :] * nx[:, None]
+    sy = y[:, None] + offsets[None, :] * ny[:, None]
+    return cv2.remap(
         np.asarray(score, dtype=np.float32),
         sx,
         sy,
         cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
-    ).astype(float)
-    hi, lo = prof.max(axis=1), prof.min(axis=1)
-    mid = 0.5 * (hi + lo)[:, None]
+    )
+
+
+def profile_crossings(
+    prof: np.ndarray, offsets: np.ndarray, min_contrast: float
+) -> tuple[FloatArray, FloatArray]:
+    """Shift along the normal (px, 0 where none) and found-mask of each profile's high-to-low
+    mid-level crossing nearest the rough point (offset 0), linearly interpolated between
+    samples (``offsets`` evenly spaced); a profile spanning less than ``min_contrast`` has none.
+    Profiles of several contours can be stacked and done in one call."""
+    hi = cv2.reduce(prof, 1, cv2.REDUCE_MAX)  # (N, 1)
+    lo = cv2.reduce(prof, 1, cv2.REDUCE_MIN)
+    mid = 0.5 * (hi + lo)
     above = prof >= mid
-    falls = above[:, :-1] & ~above[:, 1:]
-    s0, s1 = prof[:, :-1], prof[:, 1:]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.clip((s0 - mid) / (s0 - s1), 0.0, 1.0)
-    cross = offsets[None, :-1] + frac * step_px
-    cross = np.where(falls, cross, np.inf)
+    falls = above[:, :-1] > above[:, 1:]  # above, then not above: a high-to-low crossing
+    s0 = prof[:, :-1]
+    # linear interpolation of the crossing inside its step; no crossing -> inf
+    cross = np.divide(
+        s0 - mid, s0 - prof[:, 1:], out=np.full(falls.shape, np.inf, np.float32), where=falls
+    )
+    cross *= offsets[1] - offsets[0]
+    cross += offsets[:-1]
     k = np.argmin(np.abs(cross), axis=1)
     best = cross[np.arange(cross.shape[0]), k]
-    ok = np.isfinite(best) & ((hi - lo) >= min_contrast)
-    shift = np.where(ok, best, 0.0)
-    return p.astype(float) + shift[:, None] * n.astype(float), ok
+    ok = np.isfinite(best) & ((hi - lo)[:, 0] >= min_contrast)
+    return np.where(ok, best, 0.0), ok
 
 
 def contour_normals(contour_px: ArrayLike) -> FloatArray:
     """Unit outward normals of a closed, ordered contour ``(N, 2)`` (orientation from the sign of
     its shoelace area; tangent from a 5-point central difference)."""
-    p = np.asarray(contour_px, dtype=float)
-    k = np.arange(p.shape[0])
-    nxt, nxt2 = (k + 1) % p.shape[0], (k + 2) % p.shape[0]
-    tangent = p[nxt] - p[k - 1] + 0.5 * (p[nxt2] - p[k - 2])  # negative indices wrap
-    norm = np.sqrt(np.sum(tangent * tangent, axis=1, keepdims=True))
+    p = np.asarray(contour_px, dtype=float).reshape(-1, 2)
+    if p.shape[0] == 0:
+        return p.copy()
+    wrapped = p[np.arange(-2, p.shape[0] + 2) % p.shape[0]]
+    # wrapped[k + 2] = p[k]: central differences over k -+ 1 and k -+ 2 (cyclic)
+    nxt = wrapped[3:-1]
+    tangent = nxt - wrapped[1:-3] + 0.5 * (wrapped[4:] - wrapped[:-4])
+    norm = np.hypot(tangent[:, 0], tangent[:, 1])[:, None]
     tangent /= np.where(norm > 0.0, norm, 1.0)
-    signed_area = 0.5 * float(np.sum(p[:, 0] * p[nxt, 1] - p[nxt, 0] * p[:, 1]))
-    orient = 1.0 if signed_area >= 0.0 else -1.0
-    return orient * tangent[:, ::-1] * np.array([1.0, -1.0])
+    signed_area = 0.5 * float(p[:, 0] @ nxt[:, 1] - nxt[:, 0] @ p[:, 1])
+    return tangent[:, ::-1] * (_RIGHT if signed_area >= 0.0 else _LEFT)

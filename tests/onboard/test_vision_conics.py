@@ -108,3 +108,39 @@ def test_non_ellipse_rejected() -> None:
         disc_poses_from_conic(np.diag([1.0, -1.0, -1.0]) * 0 + np.diag([1.0, 1.0, 1.0]), 0.1)
     with pytest.raises(ValueError):
         ellipse_geometry(np.diag([1.0, -1.0, -1.0]))
+
+
+def _direct_fit_reference(points: np.ndarray) -> np.ndarray:
+    """Halir-Flusser direct fit written out with numpy's general eigensolver (the form
+    :func:`fit_ellipse_direct` had before it used OpenCV's real-eigenvalue solver)."""
+    mean = points.mean(axis=0)
+    s = math.sqrt(2.0) / math.sqrt(np.mean(np.sum((points - mean) ** 2, axis=1)))
+    t = np.array([[s, 0.0, -s * mean[0]], [0.0, s, -s * mean[1]], [0.0, 0.0, 1.0]])
+    x, y = s * (points[:, 0] - mean[0]), s * (points[:, 1] - mean[1])
+    d = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])
+    sc = d.T @ d
+    tm = -np.linalg.solve(sc[3:, 3:], sc[3:, :3])
+    m = sc[:3, :3] + sc[:3, 3:] @ tm
+    w, v = np.linalg.eig(np.stack([m[2] / 2.0, -m[1], m[0] / 2.0]))
+    v = np.real(v)
+    ok = np.flatnonzero(4.0 * v[0] * v[2] - v[1] ** 2 > 0.0)
+    a1 = v[:, ok[np.argmin(np.abs(np.real(w[ok])))]]
+    a, b, c, dd, e, f = np.concatenate([a1, tm @ a1])
+    q = np.array([[a, b / 2, dd / 2], [b / 2, c, e / 2], [dd / 2, e / 2, f]])
+    q = t.T @ q @ t
+    return q / np.linalg.norm(q)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_direct_fit_matches_the_general_eigensolver(seed: int) -> None:
+    """Same ellipse as the textbook form on noisy full contours and short arcs, and a sign
+    fixed by the conic (positive 2x2 block), whatever the solver's eigenvector signs."""
+    rng = np.random.default_rng(seed)
+    span = (2 * np.pi, 2.0, 1.0)[seed % 3]
+    t = rng.uniform(0.0, span, 60)
+    pts = _ellipse_points(t, a=rng.uniform(3, 30), b=rng.uniform(1, 3), ang=rng.uniform(0, 3))
+    pts += rng.normal(0.0, 0.05, pts.shape)
+    q = fit_ellipse_direct(pts)
+    ref = _direct_fit_reference(pts)
+    assert min(np.abs(q - ref).max(), np.abs(q + ref).max()) < 1e-9
+    assert q[0, 0] + q[1, 1] > 0.0
