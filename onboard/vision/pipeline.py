@@ -52,7 +52,7 @@ class VisionPipeline:
         found: list[Detection] = []
         if frame.ndim == 3:
             if self.discs.specs:
-                found += self.discs.detect(frame, cv2.cvtColor(frame, cv2.COLOR_BGR2HSV))
+                found += self.discs.detect(frame)
             if self.tags.specs:
                 found += self.tags.detect(frame, cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
         else:

@@ -36,6 +36,7 @@ Dictionary names are the ``cv2.aruco.DICT_*`` constants in lower case without ``
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -45,8 +46,19 @@ import numpy as np
 
 from onboard.geometry import FloatArray
 from onboard.vision.camera import CameraModel
-from onboard.vision.edges import refine_edge_points
+from onboard.vision.edges import profile_crossings, profile_offsets, sample_profiles_xy
 from onboard.vision.markers import Detection, MarkerSpec
+
+_EYE3 = np.eye(3)
+_NO_DIST = np.zeros(5)
+
+
+@functools.cache
+def _side_fractions(m: int) -> FloatArray:
+    """``m`` evenly spaced positions along a tag side, 12% to 88% of the way (read-only)."""
+    s = np.linspace(0.12, 0.88, m)
+    s.flags.writeable = False
+    return s
 
 
 def tag_families() -> dict[str, int]:
@@ -76,56 +88,86 @@ def refine_quad_normalized(
     """Sub-pixel corners of a tag, in *normalized* (undistorted) coordinates, from its edges.
 
     Along each side of the detected quad, edge points are moved to the mid-level crossing of the
-    darkness profile across the black border (:func:`onboard.vision.edges.refine_edge_points`,
+    darkness profile across the black border (:func:`onboard.vision.edges.profile_crossings`,
     reaching at most 0.8 cell in and out), undistorted, and fitted with a line (total least
     squares); adjacent lines intersect at the corners. ``None`` if a side has too few edge points.
     """
-    center = corners_px.mean(axis=0)
-    side_px = float(np.mean(np.linalg.norm(np.roll(corners_px, -1, axis=0) - corners_px, axis=1)))
+    corners = np.asarray(corners_px, dtype=float).reshape(4, 2)
+    quad = corners.tolist()
+    cu = 0.25 * sum(u for u, _ in quad)
+    cv = 0.25 * sum(v for _, v in quad)
+    # per side k (corner k -> k+1): start, direction, length, outward unit normal (scalars)
+    sides = []
+    for k in range(4):
+        (ua, va), (ub, vb) = quad[k], quad[(k + 1) % 4]
+        du, dv = ub - ua, vb - va
+        length = math.hypot(du, dv)
+        if length == 0.0:
+            return None  # degenerate quad
+        nu, nv = dv / length, -du / length
+        if nu * (0.5 * (ua + ub) - cu) + nv * (0.5 * (va + vb) - cv) < 0.0:
+            nu, nv = -nu, -nv
+        sides.append((ua, va, du, dv, length, nu, nv))
+    side_px = 0.25 * sum(sd[4] for sd in sides)
     cell_px = side_px / cells
-    m = int(np.clip(side_px, 6, 64))
-    s = np.linspace(0.12, 0.88, m)
-    a, b = corners_px, np.roll(corners_px, -1, axis=0)
-    pts = a[:, None, :] + s[None, :, None] * (b - a)[:, None, :]  # (4, m, 2)
-    t = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
-    n = np.stack([t[:, 1], -t[:, 0]], axis=1)
-    n *= np.where(np.sum(n * (0.5 * (a + b) - center), axis=1, keepdims=True) < 0, -1.0, 1.0)
-    normals = np.repeat(n[:, None, :], m, axis=1)
+    m = int(min(max(side_px, 6.0), 64.0))
     reach = min(max(0.8 * cell_px, 0.75), 3.0)
     # Only the tag's neighbourhood is converted to float (the profiles reach ``reach`` px out).
     h, w = gray.shape[:2]
     margin = math.ceil(reach) + 2
-    u0 = min(max(math.floor(float(corners_px[:, 0].min())) - margin, 0), w - 1)
-    v0 = min(max(math.floor(float(corners_px[:, 1].min())) - margin, 0), h - 1)
-    u1 = max(min(math.ceil(float(corners_px[:, 0].max())) + margin + 1, w), u0 + 1)
-    v1 = max(min(math.ceil(float(corners_px[:, 1].max())) + margin + 1, h), v0 + 1)
-    offset = np.array([u0, v0], dtype=float)
-    refined, ok = refine_edge_points(
-        255.0 - gray[v0:v1, u0:u1].astype(np.float32),
-        pts.reshape(-1, 2) - offset,
-        normals.reshape(-1, 2),
-        reach,
-        reach,
-        step_px=0.2,
-        min_contrast=25.0,
+    us, vs = [u for u, _ in quad], [v for _, v in quad]
+    u0 = min(max(math.floor(min(us)) - margin, 0), w - 1)
+    v0 = min(max(math.floor(min(vs)) - margin, 0), h - 1)
+    u1 = max(min(math.ceil(max(us)) + margin + 1, w), u0 + 1)
+    v1 = max(min(math.ceil(max(vs)) + margin + 1, h), v0 + 1)
+    # m points per side (rows), in the window's pixels, and each side's outward normal
+    side = np.array(sides)  # (4, 7): ua, va, du, dv, length, nu, nv
+    frac = _side_fractions(m)
+    px = (side[:, 0:1] - u0) + frac * side[:, 2:3]
+    py = (side[:, 1:2] - v0) + frac * side[:, 3:4]
+    nx = np.repeat(side[:, 5:6], m, axis=1)
+    ny = np.repeat(side[:, 6:7], m, axis=1)
+    offsets = profile_offsets(reach, reach, 0.2)
+    prof = sample_profiles_xy(
+        cv2.subtract(255.0, gray[v0:v1, u0:u1], dtype=cv2.CV_32F),
+        px.ravel().astype(np.float32),
+        py.ravel().astype(np.float32),
+        nx.ravel().astype(np.float32),
+        ny.ravel().astype(np.float32),
+        offsets,
     )
-    xy = camera.pixels_to_normalized(refined + offset).reshape(4, m, 2)
+    shift, ok = profile_crossings(prof, offsets, 25.0)
+    shift = shift.reshape(4, m)
+    xy = camera.pixels_to_normalized(
+        np.stack([px + (shift * nx + u0), py + (shift * ny + v0)], axis=-1)
+    )
     weight = ok.reshape(4, m).astype(float)
-    count = weight.sum(axis=1)
-    if np.any(count < 3):
+    x, y = xy[:, :, 0], xy[:, :, 1]
+    wx, wy = weight * x, weight * y
+    # weighted moments of each side's points: count, sums of x, y, x^2, y^2, xy
+    moments = np.stack([weight, wx, wy, wx * x, wy * y, wx * y]).sum(axis=2).T.tolist()
+    if min(mom[0] for mom in moments) < 3:
         return None
-    # Total least squares line of each side: normal = least-variance direction of its points.
-    mean = np.einsum("km,kmi->ki", weight, xy) / count[:, None]
-    dev = (xy - mean[:, None, :]) * np.sqrt(weight)[:, :, None]
-    _, vecs = np.linalg.eigh(np.einsum("kmi,kmj->kij", dev, dev))
-    normal = vecs[:, :, 0]
-    lines = np.concatenate([normal, -np.sum(normal * mean, axis=1, keepdims=True)], axis=1)
+    # Total least squares line of each side: normal = least-variance direction of its points,
+    # i.e. perpendicular to the principal axis of their scatter (closed form in 2-D; the
+    # scatter about the mean from the moments: the along-side spread dominates, so the
+    # cancellation costs ~1e-14 rad of line angle).
+    lines = []
+    for count, sx, sy, sxx, syy, sxy in moments:
+        cx, cy = sx / count, sy / count
+        vxx, vyy, vxy = sxx - sx * cx, syy - sy * cy, sxy - sx * cy
+        theta = 0.5 * math.atan2(2.0 * vxy, vxx - vyy)  # principal axis angle
+        nx_, ny_ = -math.sin(theta), math.cos(theta)
+        lines.append((nx_, ny_, -(nx_ * cx + ny_ * cy)))
     # Corner k is where side k-1 meets side k: the cross product of the two lines.
-    prev = lines[[3, 0, 1, 2]]
-    x = prev[:, [1, 2, 0]] * lines[:, [2, 0, 1]] - prev[:, [2, 0, 1]] * lines[:, [1, 2, 0]]
-    if np.any(np.abs(x[:, 2]) < 1e-12):
-        return None
-    return x[:, :2] / x[:, 2:3]
+    out = []
+    for k in range(4):
+        (a1, b1, c1), (a2, b2, c2) = lines[k - 1], lines[k]
+        z = a1 * b2 - b1 * a2
+        if abs(z) < 1e-12:
+            return None
+        out.append(((b1 * c2 - c1 * b2) / z, (c1 * a2 - a1 * c2) / z))
+    return np.array(out)
 
 
 def tag_object_points(side_m: float) -> FloatArray:
@@ -244,22 +286,22 @@ class TagDetector:
         xy = refine_quad_normalized(cam, gray, corners_px, cells)
         if xy is None:
             xy = cam.pixels_to_normalized(corners_px)
-        ok, rvec, tvec = cv2.solvePnP(
-            obj, xy, np.eye(3), np.zeros(5), flags=cv2.SOLVEPNP_IPPE_SQUARE
-        )
-        if not ok or not np.all(np.isfinite(tvec)) or tvec[2, 0] <= 0.0:
+        ok, rvec, tvec = cv2.solvePnP(obj, xy, _EYE3, _NO_DIST, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        t = tvec.ravel()
+        if not ok or not np.all(np.isfinite(t)) or t[2] <= 0.0:
             return None
-        proj, _ = cv2.projectPoints(obj, rvec, tvec, np.eye(3), np.zeros(5))
-        err_px = math.sqrt(float(np.mean(np.sum((proj.reshape(4, 2) - xy) ** 2, axis=1))))
+        proj, _ = cv2.projectPoints(obj, rvec, tvec, _EYE3, _NO_DIST)
+        residual = proj.reshape(4, 2) - xy
+        err_px = math.sqrt(float(np.vdot(residual, residual)) / 4.0)
         err_px /= cam.pixel_angle_rad
-        bearing, rng_m = cam.bearing_range_body(tvec.ravel())
-        center = cam.project_cam(tvec.ravel())[0]
+        bearing, rng_m = cam.bearing_range_body(t)
+        center = cam.normalized_to_pixels(t[:2] / t[2]).tolist()
         return Detection(
             vehicle_id=spec.id,
             kind="tag",
             bearing_body=bearing,
             range_m=float(rng_m),
             quality=1.0 / (1.0 + (err_px / 0.5) ** 2),
-            center_px=(float(center[0]), float(center[1])),
+            center_px=(center[0], center[1]),
             outline_px=cam.normalized_to_pixels(xy),
         )

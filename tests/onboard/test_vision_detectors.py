@@ -16,6 +16,7 @@ from onboard.vision.conics import (
     fit_ellipse_direct,
     ransac_ellipse,
     robust_ellipse,
+    robust_ellipses,
 )
 from onboard.vision.edges import contour_normals
 from onboard.vision.markers import MarkerSpec
@@ -113,19 +114,71 @@ def _disc_scene(renderer: Renderer) -> np.ndarray:
 
 def test_colour_candidates_hold_every_blob(renderer: Renderer, monkeypatch) -> None:
     img = _disc_scene(renderer)
-    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
     specs = _disc_specs()
-    boxes = discs.colour_candidates(hsv, specs, 6.0, 64)
+    boxes = discs.colour_candidates(img, specs, 64)
     assert 5 <= len(boxes) <= 8  # the five coloured blobs (+ little noise), not the texture
-    fast = discs.DiscDetector(renderer.camera, specs).detect(img, hsv)
+    fast = discs.DiscDetector(renderer.camera, specs).detect(img)
     # the same detector searching the whole frame for each colour finds exactly the same
     h, w = img.shape[:2]
     monkeypatch.setattr(discs, "colour_candidates", lambda *a: np.array([[0, 0, w, h]]))
-    full = discs.DiscDetector(renderer.camera, specs).detect(img, hsv)
+    full = discs.DiscDetector(renderer.camera, specs).detect(img)
     assert [d.vehicle_id for d in fast] == [d.vehicle_id for d in full] == [1, 2, 3]
     for a, b in zip(fast, full, strict=True):
         np.testing.assert_array_equal(a.bearing_body, b.bearing_body)
         assert a.range_m == b.range_m and a.quality == b.quality
+
+
+def test_candidate_box_too_small_grows_to_hold_its_blob(renderer: Renderer, monkeypatch) -> None:
+    """A box that cuts a disc (a thin part missed by the subsampled mask) is grown until the
+    disc's blob fits: same detection as with the whole frame."""
+    img = _disc_scene(renderer)
+    specs = _disc_specs()
+    h, w = img.shape[:2]
+    monkeypatch.setattr(discs, "colour_candidates", lambda *a: np.array([[0, 0, w, h]]))
+    full = discs.DiscDetector(renderer.camera, specs).detect(img)
+    ref = next(d for d in full if d.vehicle_id == 1)  # the 4 m disc, about 40 px across
+    u, v = (round(c) for c in ref.center_px)
+    monkeypatch.setattr(discs, "colour_candidates", lambda *a: np.array([[u - 3, v - 3, 6, 6]]))
+    dets = discs.DiscDetector(renderer.camera, specs).detect(img)
+    assert [d.vehicle_id for d in dets] == [1]
+    np.testing.assert_array_equal(dets[0].bearing_body, ref.bearing_body)
+    assert dets[0].range_m == ref.range_m
+
+
+def test_overlapping_boxes_give_each_blob_once(renderer: Renderer) -> None:
+    img = _disc_scene(renderer)
+    det = discs.DiscDetector(renderer.camera, _disc_specs())
+    h, w = img.shape[:2]
+    once = det._blobs(img, np.array([[0, 0, w, h]]))
+    twice = det._blobs(img, np.array([[0, 0, w, h], [0, 0, w, h]]))
+    assert [len(b) for b in once] == [1, 2, 1]  # colour 2: the disc and the half-hidden blob
+    assert [[a for a, _ in b] for b in twice] == [[a for a, _ in b] for b in once]
+
+
+def test_saturated_mask_holds_every_hsv_match() -> None:
+    """The candidate mask (no HSV conversion) contains every pixel ``inRange`` on OpenCV's HSV
+    keeps, for every (max, min) channel pair, and little more (one saturation step)."""
+    v, low = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
+    keep = low <= v
+    v, low = v[keep].astype(np.uint8), low[keep].astype(np.uint8)
+    mid = ((v.astype(int) + low) // 2).astype(np.uint8)
+    img = np.stack([low, mid, v], axis=1).reshape(-1, 1, 3)  # B = min, G between, R = max
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    for s_min, v_min in ((120, 60), (40, 0), (200, 150), (1, 1), (0, 0)):
+        exact = cv2.inRange(hsv, np.array([0, s_min, v_min]), np.array([255, 255, 255])) > 0
+        fast = discs.saturated_mask(img, s_min, v_min) > 0
+        assert not np.any(exact & ~fast)
+        near = cv2.inRange(hsv, np.array([0, max(s_min - 1, 0), v_min]), np.array([255] * 3)) > 0
+        assert not np.any(fast & ~near)
+
+
+def test_subsample2_keeps_even_pixels() -> None:
+    rng = np.random.default_rng(0)
+    for h, w in ((480, 640), (7, 10), (6, 9)):
+        img = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+        planes = discs.subsample2(img)
+        assert len(planes) == 3 and all(p.flags.c_contiguous for p in planes)
+        np.testing.assert_array_equal(np.stack(planes, axis=2), img[::2, ::2])
 
 
 def test_threshold_constant_follows_contrast(renderer: Renderer) -> None:
@@ -226,3 +279,30 @@ def test_tag_cut_by_the_image_edge_is_not_reported(renderer: Renderer) -> None:
             *POSE, [RenderMarker("tag", 0.5, p, rot, tag_id=5)], blur_sigma_px=0.6, noise_std=2.0
         )
         assert pipe.process(img) == []
+
+
+def test_robust_ellipses_match_one_by_one() -> None:
+    """The batched fit gives each set what robust_ellipse gives it alone: direct fit, refit on
+    the inliers, RANSAC (the only one drawing), and None for a set that cannot be fitted."""
+    rng = np.random.default_rng(7)
+    clean = _ellipse(np.linspace(0, 2 * np.pi, 90, endpoint=False)) + rng.normal(0, 0.02, (90, 2))
+    few_out = clean.copy()
+    few_out[::40] += 0.5  # 3 of 90 off: refit on the inliers, no RANSAC
+    good = _ellipse(rng.uniform(0, 2 * np.pi, 120)) + rng.normal(0, 0.03, (120, 2))
+    many_out = np.vstack([good, rng.uniform([0, -15], [20, 5], (40, 2))])
+    sets = [clean + 5.0, few_out, many_out, clean[:4], clean * 0.01]
+    batch = robust_ellipses(sets, 0.2, np.random.default_rng(3))
+    for pts, fit in zip(sets, batch, strict=True):
+        try:
+            alone = robust_ellipse(pts, 0.2, np.random.default_rng(3))
+        except ValueError:
+            assert fit is None
+            continue
+        assert fit is not None
+        assert fit.iterations == alone.iterations
+        np.testing.assert_array_equal(fit.inliers, alone.inliers)
+        assert _same_conic(fit.conic, alone.conic) < 1e-9
+    assert batch[0].iterations == 0 and batch[0].inliers.all()
+    assert batch[1].iterations == 0 and not batch[1].inliers.all()
+    assert batch[2].iterations > 0
+    assert batch[3] is None
