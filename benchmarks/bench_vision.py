@@ -23,6 +23,7 @@ with the absolute numbers.
     python benchmarks/bench_vision.py            # 60 images for accuracy, 30 frames timed
     python benchmarks/bench_vision.py --quick    # 12 images, 10 frames
     python benchmarks/bench_vision.py --jpeg --tag-size 1.0 --contrast 0.5
+    python benchmarks/bench_vision.py --quick --threads 1   # cv2.setNumThreads(1) first
 """
 
 from __future__ import annotations
@@ -283,6 +284,12 @@ def main() -> None:
         "--contrast", type=float, default=1.0, help="scale grey levels about 128 (e.g. 0.5)"
     )
     parser.add_argument("--no-timing", action="store_true")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="cv2.setNumThreads before timing (default: OpenCV's)",
+    )
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args()
     n_img = 12 if args.quick else args.images
@@ -293,6 +300,8 @@ def main() -> None:
     )
     report(*study(n_img, args.seed, args.disc_size, args.tag_size, args.jpeg, args.contrast))
     if not args.no_timing:
+        if args.threads is not None:
+            cv2.setNumThreads(args.threads)
         n_frames = 10 if args.quick else args.frames
         timing(n_frames, 3 if args.quick else args.passes, args.seed, args.disc_size, args.tag_size)
 
