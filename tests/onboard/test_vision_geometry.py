@@ -64,8 +64,10 @@ def test_relative_pose_from_two_rendered_views() -> None:
     A view of a single wall is the essential matrix's degenerate case: it has a twin solution,
     and in half the noise draws the estimate took it (translation 30 degrees off). The corner
     view is not degenerate; there the rotation is within 2 degrees in every draw and the
-    translation direction in 0.8-2.8 degrees (1.8 m baseline, scene 7-17 m away): its median
-    over draws is what is held to 2 degrees, and no draw may be grossly off."""
+    translation direction in 0.8-3.3 degrees (1.8 m baseline, scene 7-17 m away): its median
+    over 11 draws is what is held to 2 degrees, and no draw may be grossly off (5 draws were too
+    few to estimate a median: over 30 draws it is 1.3-1.4 degrees whatever the pixel-noise
+    generator, over the first 5 it read 1.5 with one and 2.45 with another)."""
     cam = CameraModel.from_fov(640, 480, 90.0)
     renderer = Renderer(cam, make_background(3, half_size_m=12.0, height_m=10.0, texture_px=1024))
     p_i, att_i = np.array([0.0, 0.0, -5.0]), (0.0, -0.5, 0.785)
@@ -74,7 +76,7 @@ def test_relative_pose_from_two_rendered_views() -> None:
     t_true = r_i.T @ (p_j - p_i)
     t_true /= np.linalg.norm(t_true)
     t_errors = []
-    for seed in (1, 3, 5, 7, 9):
+    for seed in range(1, 23, 2):
         img_i = renderer.render(p_i, *att_i, noise_std=2.0, seed=seed)
         img_j = renderer.render(p_j, *att_j, noise_std=2.0, seed=seed + 1)
         est = relative_pose(cam, img_i, cam, img_j)
