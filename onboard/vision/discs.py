@@ -106,11 +106,6 @@ def chroma(image_bgr: np.ndarray) -> np.ndarray:
     return cv2.subtract(cv2.max(cv2.max(b, g), r), cv2.min(cv2.min(b, g), r), dtype=cv2.CV_32F)
 
 
-def hsv_mask(hsv: np.ndarray, hsv_min: Sequence[int], hsv_max: Sequence[int]) -> np.ndarray:
-    """Binary mask of pixels within the HSV range; ``h_min > h_max`` wraps the hue through 0."""
-    return _mask_of_ranges(hsv, hsv_ranges(hsv_min, hsv_max))
-
-
 def hsv_ranges(
     hsv_min: Sequence[int], hsv_max: Sequence[int]
 ) -> list[tuple[np.ndarray, np.ndarray]]:

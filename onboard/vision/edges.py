@@ -3,10 +3,11 @@
 A marker's outline is a step between two levels (the marker's colour or black, and the
 background) blurred by the optics and sampled by pixels. For a step blurred by any symmetric
 kernel, the edge is where the profile crosses the mean of the two levels. Given rough edge
-points and outward normals, :func:`refine_edge_points` samples the ``score`` image along each
-normal (bilinear), and returns the linearly interpolated mid-level crossing nearest the rough
-point. ``score`` must be high inside the marker (chroma for a coloured disc, darkness for a
-tag's black border).
+points and outward normals, :func:`sample_profiles` samples the ``score`` image along each
+normal (bilinear) and :func:`profile_crossings` returns the linearly interpolated mid-level
+crossing nearest the rough point, for the profiles of several contours at once. ``score``
+must be high inside the marker (chroma for a coloured disc, darkness for a tag's black
+border).
 """
 
 from __future__ import annotations
@@ -19,30 +20,6 @@ from onboard.geometry import FloatArray
 
 _RIGHT = np.array([1.0, -1.0])
 _LEFT = -_RIGHT
-
-
-def refine_edge_points(
-    score: np.ndarray,
-    points_px: ArrayLike,
-    normals: ArrayLike,
-    reach_in_px: float,
-    reach_out_px: float,
-    step_px: float = 0.25,
-    min_contrast: float = 10.0,
-) -> tuple[FloatArray, FloatArray]:
-    """Refined points ``(N, 2)`` and a mask of points whose profile had a usable crossing.
-
-    The profile of point ``k`` runs from ``-reach_in_px`` (inside) to ``+reach_out_px``
-    (outside) along its unit outward normal. Points without a high-to-low crossing, or whose
-    profile spans less than ``min_contrast``, keep their input position and are flagged False.
-    """
-    p = np.asarray(points_px, dtype=np.float32).reshape(-1, 2)
-    n = np.asarray(normals, dtype=np.float32).reshape(-1, 2)
-    offsets = profile_offsets(reach_in_px, reach_out_px, step_px)
-    if p.shape[0] == 0 or offsets.size < 2:
-        return p.astype(float), np.zeros(p.shape[0], dtype=bool)
-    shift, ok = profile_crossings(sample_profiles(score, p, n, offsets), offsets, min_contrast)
-    return p.astype(float) + shift[:, None] * n.astype(float), ok
 
 
 def profile_offsets(reach_in_px: float, reach_out_px: float, step_px: float) -> np.ndarray:
