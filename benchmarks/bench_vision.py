@@ -139,7 +139,7 @@ def study(
         if contrast != 1.0:
             img = np.clip(contrast * (img.astype(float) - 128.0) + 128.0, 0, 255).astype(np.uint8)
         if jpeg:
-            img = decode_frame(encode_frame(img, "jpeg", 90))
+            img = decode_frame(encode_frame(img, "jpeg", 90, full_chroma=False))
         dets = {d.vehicle_id: d for d in pipe.process(img)}
         for vid, p_body in view.p_body.items():
             rng_true = float(np.linalg.norm(p_body))
@@ -279,7 +279,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--disc-size", type=float, default=0.5)
     parser.add_argument("--tag-size", type=float, default=0.5)
-    parser.add_argument("--jpeg", action="store_true", help="JPEG (q=90) round trip of each image")
+    parser.add_argument(
+        "--jpeg",
+        action="store_true",
+        help="JPEG (q=90, 4:2:0 chroma like a video stream) round trip of each image",
+    )
     parser.add_argument(
         "--contrast", type=float, default=1.0, help="scale grey levels about 128 (e.g. 0.5)"
     )

@@ -11,6 +11,7 @@ from messages.image import (
     Image,
     check_frame,
     decode_frame,
+    encode_frame,
     image_from_payload,
     image_key,
     image_payload,
@@ -63,3 +64,27 @@ def test_bad_frames() -> None:
     with pytest.raises(FrameError) as exc:
         image_from_payload(wrong)
     assert exc.value.reason == "size"
+
+
+def _jpeg_sampling(data: bytes) -> list[int]:
+    """``H << 4 | V`` of each component in the JPEG's baseline frame header (SOF0)."""
+    k = data.index(b"\xff\xc0")
+    n = data[k + 9]
+    return [data[k + 11 + 3 * c] for c in range(n)]
+
+
+def test_jpeg_keeps_full_resolution_colour_unless_asked() -> None:
+    """Colour markers are found from chroma: the simulator's frames are 4:4:4, not the
+    encoder's default 4:2:0 (which halves chroma resolution both ways)."""
+    img = _frame(seed=2)
+    assert _jpeg_sampling(encode_frame(img)) == [0x11, 0x11, 0x11]
+    assert _jpeg_sampling(encode_frame(img, full_chroma=False)) == [0x22, 0x11, 0x11]
+    # a one-pixel red/green checkerboard survives only with full chroma
+    board = np.zeros((64, 64, 3), dtype=np.uint8)
+    board[::2, ::2] = board[1::2, 1::2] = (0, 0, 230)
+    board[1::2, ::2] = board[::2, 1::2] = (0, 230, 0)
+    err = {
+        full: np.abs(decode_frame(encode_frame(board, full_chroma=full)).astype(int) - board).mean()
+        for full in (True, False)
+    }
+    assert err[True] < 0.25 * err[False], err
