@@ -60,6 +60,8 @@
     markers = "markers.toml"          # the fleet's markers (one per vehicle id)
     device = ""                       # "": images over Zenoh (bf/<fleet>/<id>/camera/image);
                                       # else a local OpenCV capture (index, file or URL) as camera 0
+    attitude_rate_hz = 100.0          # ATTITUDE stream asked of the autopilot (pymavlink link):
+                                      # levelling needs roll and pitch at each frame's exposure
 
 Agent ids are the vehicle indices ``0..N-1`` (MAVLink system id = id + 1, PX4 SITL port
 14540 + id), as in ``shared/design.md``.
@@ -132,6 +134,7 @@ class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
     files: list[str] = msgspec.field(default_factory=list)
     markers: str = ""
     device: str = ""
+    attitude_rate_hz: float = 100.0
 
 
 class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
@@ -234,6 +237,10 @@ def load_fleet(path: str | Path) -> Fleet:
         raise ConfigError(f"{path}: bearings = 'camera' needs camera.files and camera.markers")
     if cam.device and len(cam.files) != 1:
         raise ConfigError(f"{path}: camera.device feeds one camera: give exactly one camera file")
+    if not 0.0 < cam.attitude_rate_hz <= 1000.0:
+        raise ConfigError(
+            f"{path}: camera.attitude_rate_hz: must be in (0, 1000], got {cam.attitude_rate_hz}"
+        )
     try:
         formation = load_formation(path.parent / config.formation)
     except FormationError as exc:

@@ -9,6 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from groundstation.demo_cli import write_camera_rig
+from onboard.autopilot.base import DEFAULT_STREAM_RATES_HZ
+from onboard.daemon.cli import _stream_rates
 from onboard.daemon.config import ConfigError, load_fleet
 from onboard.vision.config import load_camera, load_markers
 
@@ -50,11 +52,27 @@ def test_camera_section_is_resolved_next_to_the_fleet_file(tmp_path: Path) -> No
         ('bearings = "pixels"\n', "bearings"),
         ('[camera]\nfiles = ["a.toml", "b.toml"]\ndevice = "0"\n', "exactly one camera file"),
         ("[camera]\nlens = 3\n", "lens"),
+        ("[camera]\nattitude_rate_hz = 0.0\n", "camera.attitude_rate_hz"),
+        ("[camera]\nattitude_rate_hz = nan\n", "camera.attitude_rate_hz"),
     ],
 )
 def test_bad_camera_keys_are_named(tmp_path: Path, text: str, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         load_fleet(write(tmp_path, text))
+
+
+def test_camera_bearings_ask_for_attitude_at_the_levelling_rate(tmp_path: Path) -> None:
+    """Levelling interpolates roll and pitch at each frame's exposure: with camera bearings the
+    daemon asks for ATTITUDE at ``camera.attitude_rate_hz`` (default 100 Hz, PX4's onboard
+    rate); with the virtual camera it keeps the link's defaults."""
+    fleet = load_fleet(write(tmp_path, ""))
+    assert fleet.config.camera.attitude_rate_hz == 100.0
+    assert _stream_rates("sim", 100.0) == dict(DEFAULT_STREAM_RATES_HZ)
+    rates = _stream_rates("camera", 100.0)
+    assert rates["ATTITUDE"] == 100.0 > DEFAULT_STREAM_RATES_HZ["ATTITUDE"]
+    assert {k: v for k, v in rates.items() if k != "ATTITUDE"} == {
+        k: v for k, v in DEFAULT_STREAM_RATES_HZ.items() if k != "ATTITUDE"
+    }
 
 
 def test_rig_files_load_with_the_vision_config(tmp_path: Path) -> None:
