@@ -454,7 +454,7 @@ class AgentCore:
                     seq=self._seq,
                     stamp_s=t_s,
                     peers=[j for j, _ in ran],
-                    chi_hat_inv_m=[e.chi_hat for _, e in ran],
+                    chi_hat_inv_m=[e.chi_at(t_s, cfg.peer_timeout_s) for _, e in ran],
                     excitation=[e.excitation for _, e in ran],
                     e_index=[e.e_index for _, e in ran],
                     e_folds=[e.e_folds for _, e in ran],
@@ -613,9 +613,10 @@ class AgentCore:
         return True
 
     def chi_hat(self, j: int) -> float | None:
-        """Current inverse-distance estimate on reciprocal edge ``(self, j)``, own or received."""
+        """Inverse-distance estimate on reciprocal edge ``(self, j)`` now: an own observer's carried
+        to the core's time (:meth:`SfmEdge.chi_at`), a received one as its sender carried it."""
         if j in self.sfm:
-            return self.sfm[j].chi_hat
+            return self.sfm[j].chi_at(self._t or 0.0, self.config.peer_timeout_s)
         m = self._sfm_in.get(j)
         return None if m is None else m[1]
 

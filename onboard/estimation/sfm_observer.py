@@ -150,6 +150,10 @@ class SfmEdge:
     pair is the critically damped ``s^2 + c1 s + alpha lambda`` (module docstring), so the
     estimation error decays like ``exp(-int sqrt(alpha lambda) dt)``: this counts the e-foldings
     the initial error has had (5: under 1% left)."""
+    t_s: float = -math.inf
+    """Time the observer has been advanced to (the agent runs it up to its newest frame)."""
+    chi_rate: float = 0.0
+    """Model rate ``-chihat^2 u_ij^T beta`` (eq. 7) at ``t_s``, for :meth:`chi_at`."""
 
     def new_bearing(self, beta: Vec3, stamp_s: float, t_s: float, u_ij: Vec3, w_i: float) -> None:
         """Take a camera frame captured at ``stamp_s`` and predict it forward to ``t_s``."""
@@ -159,6 +163,16 @@ class SfmEdge:
         self.beta_pred = predict_bearing(beta, self.chi_hat, u_ij, w_i, t_s - stamp_s)
         if self.beta_hat is None:
             self.beta_hat = self.beta_pred
+
+    def chi_at(self, t_s: float, horizon_s: float) -> float:
+        """``chihat`` carried from the observer's time to ``t_s`` with the model (eq. 7).
+
+        The agent advances the observer only up to the capture time of its newest frame, so
+        ``chihat`` is the inverse distance of that instant: with camera frames at 10 Hz and their
+        latency, 0.1-0.2 s ago, long enough for a moving team's distances to change by 1-2%.
+        Users of the estimate want it now; the prediction covers at most ``horizon_s``."""
+        dt = min(max(t_s - self.t_s, 0.0), horizon_s)
+        return self.chi_hat + dt * self.chi_rate
 
     def resync(self) -> None:
         """Forget the bearing state after a hole in the inputs; the next frame restarts it.
@@ -182,10 +196,16 @@ class SfmEdge:
         self.excitation = excitation(beta, u_ij)
         self.e_folds += dt * math.sqrt(self.alpha * self.excitation)
         self.e_index = self.window.add(t_s, x0 * x0 + x1 * x1 + x2 * x2, dt)
-        self.beta_pred = predict_bearing(beta, self.chi_hat, u_ij, w_i, dt)
+        self.beta_pred = beta = predict_bearing(beta, self.chi_hat, u_ij, w_i, dt)
         self.beta_hat = (
             beta_hat[0] + dt * d_bh[0],
             beta_hat[1] + dt * d_bh[1],
             beta_hat[2] + dt * d_bh[2],
         )
         self.chi_hat += dt * d_chi
+        self.t_s = t_s
+        self.chi_rate = (
+            -self.chi_hat
+            * self.chi_hat
+            * (u_ij[0] * beta[0] + u_ij[1] * beta[1] + u_ij[2] * beta[2])
+        )
