@@ -166,8 +166,12 @@ def sim(
     )
     sys.stdout.flush()
 
+    # SIGINT and SIGTERM both stop the simulator, through handlers of our own: a process
+    # started in the background by a non-interactive shell inherits SIGINT *ignored*, and
+    # Python then never raises KeyboardInterrupt, so Ctrl-C or `kill -INT` did nothing.
     stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop_signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in stop_signals}
     server.start()
     try:
         while not stop.wait(0.5):
@@ -176,10 +180,9 @@ def sim(
                 extra = f"  {images.status()}" if images is not None else ""
                 sys.stdout.write(server.status() + extra + end)
                 sys.stdout.flush()
-    except KeyboardInterrupt:
-        pass
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         server.stop()
         if images is not None:
             images.close()
