@@ -331,7 +331,11 @@ def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
         if first_good < len(t) and t[first_good] >= start:
             time_to_scale = float(t[first_good] - start)
     tail = t >= (t[-1] - 2.0) if len(t) else np.zeros(0, dtype=bool)
-    final_scale = float(np.nanmax(np.nanmean(err[tail], axis=0))) if tail.any() else None
+    tail_err = err[tail] if tail.any() else np.zeros((0, err.shape[1]))
+    estimated = np.isfinite(tail_err).any(axis=0)  # pairs with an estimate at the end
+    final_scale = (
+        float(np.max(np.nanmean(tail_err[:, estimated], axis=0))) if estimated.any() else None
+    )
     final_bearing = float(np.mean(np.array(s.bearing_error_deg)[tail])) if tail.any() else None
     status = ev.snapshot()
     by_reason: dict[str, int] = {}
@@ -450,7 +454,8 @@ def run_demo(
             [
                 "-m", "sim.cli", "--vehicles", str(vehicles), "--flavour", flavour,
                 "--layout", str(out / "start.toml"), "--zenoh", loopback_endpoint(ports.zenoh),
-                "--fleet", fleet, "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
+                "--fleet", fleet, "--transport", "udp",  # the fleet file's links, any flavour
+                "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
                 "--bind-base", str(ports.mavlink + vehicles + 5),
                 "--camera-fov", str(CAMERA_FOV_DEG), "--camera-range", str(CAMERA_RANGE_M), "--seed", str(seed), "--quiet",
                 "--speedup", str(speedup), *camera_args,
@@ -506,6 +511,13 @@ def run_demo(
             if on_tick is not None:
                 on_tick(evaluator, duration_s, phase)
         summary["landed"] = evaluator.all_landed()
+        if summary["mission_start_s"] is None:
+            phases = ", ".join(f"{k}: {st.phase}" for k, st in sorted(evaluator.snapshot().items()))
+            raise RuntimeError(
+                f"the mission never started: the vehicles were not all flying within "
+                f"{duration_s:g} s of simulation (daemon phases: {phases or 'none reported'}); "
+                f"agent*.log and sim.log in {out} say why"
+            )
         return summary
     finally:
         if evaluator is not None:
