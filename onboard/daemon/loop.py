@@ -112,6 +112,8 @@ class DaemonState:
         with self.lock:
             if phase != self.phase:
                 log.info("phase %s -> %s %s", self.phase, phase, detail)
+            elif detail != self.detail and detail:  # e.g. why connecting keeps failing
+                log.info("phase %s: %s", phase, detail)
             self.phase, self.detail = phase, detail
 
     def get(self) -> str:
