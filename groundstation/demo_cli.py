@@ -13,7 +13,7 @@ import os
 import sys
 import tempfile
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, get_args
 
 import typer
 from rich.console import Console
@@ -157,7 +157,7 @@ def demo(
         float, typer.Option(help="Mission time before landing (simulation s).")
     ] = 60.0,
     out: Annotated[Path | None, typer.Option(help="Directory for logs, data and plots.")] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the formation and of all noise.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the formation and of all noise.")] = 0,
     mode: Annotated[str, typer.Option(help="Agent core mode.")] = "formation-active",
     json: Annotated[
         bool, typer.Option("--json", help="Print the summary as one JSON object.")
@@ -215,11 +215,20 @@ def demo(
     if not 0.0 <= loss < 1.0:
         typer.echo("error: --loss must be in [0, 1)", err=True)
         raise typer.Exit(2)
+    if not (math.isfinite(duration) and duration > 0.0):
+        typer.echo("error: --duration must be a positive number of seconds", err=True)
+        raise typer.Exit(2)
     if flavour not in ("px4", "ardupilot"):
         typer.echo("error: --flavour must be px4 or ardupilot", err=True)
         raise typer.Exit(2)
     if bearings not in ("sim", "camera"):
         typer.echo("error: --bearings must be sim or camera", err=True)
+        raise typer.Exit(2)
+    from onboard.agent import Mode
+
+    modes = get_args(Mode)
+    if mode not in modes:
+        typer.echo(f"error: --mode must be one of {', '.join(modes)}", err=True)
         raise typer.Exit(2)
     if headless:
         _headless(vehicles, seed, duration, mode, loss, json, rigidity)

@@ -44,7 +44,7 @@ def plan(
         float | None,
         typer.Option(help="Camera field of view (deg): landmarks on the ground, in view."),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the random starts (ipopt, isres).")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the random starts (ipopt, isres).")] = 0,
     starts: Annotated[int, typer.Option(help="IPOPT multi-start count.")] = 5,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     plot: Annotated[Path | None, typer.Option(help="Write a figure (png, pdf, svg).")] = None,

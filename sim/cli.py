@@ -23,7 +23,9 @@ def sim(
         str, typer.Option(help="grid, random, or a formation file (vehicles start on the ground).")
     ] = "grid",
     spacing: Annotated[float, typer.Option(help="Grid spacing (m).")] = 5.0,
-    seed: Annotated[int, typer.Option(help="Seed of the random layout and of all noise.")] = 0,
+    seed: Annotated[
+        int, typer.Option(min=0, help="Seed of the random layout and of all noise.")
+    ] = 0,
     speedup: Annotated[float, typer.Option(help="Simulation time per wall second.")] = 1.0,
     lockstep: Annotated[
         bool, typer.Option(help="Advance only on SimStep messages (needs --zenoh).")

@@ -19,7 +19,7 @@ ALL_SCENARIOS = [*SCENARIOS, *RIGIDITY_SCENARIOS]
 
 def scenario(
     name: Annotated[str, typer.Argument(help=f"One of: {', '.join(ALL_SCENARIOS)}")],
-    seed: Annotated[int, typer.Option(help="Seed of every random choice")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of every random choice")] = 0,
     duration: Annotated[
         float | None, typer.Option(help="Simulated seconds [default: 20, rigidity-*: 60]")
     ] = None,
@@ -45,8 +45,12 @@ def scenario(
         )
     if duration is None:
         duration = 60.0 if name in RIGIDITY_SCENARIOS else 20.0
-    if duration <= 0:
-        raise typer.BadParameter("duration must be positive")
+    if not (math.isfinite(duration) and duration > 0):
+        raise typer.BadParameter("duration must be a positive number of seconds")
+    if not (math.isfinite(bearing_noise_deg) and bearing_noise_deg >= 0):
+        raise typer.BadParameter("bearing noise must be >= 0 degrees")
+    if not (math.isfinite(latency) and latency >= 0):
+        raise typer.BadParameter("latency must be >= 0 seconds")
     if not 0.0 <= loss < 1.0:
         raise typer.BadParameter("loss must be in [0, 1)")
     console = Console(stderr=True)

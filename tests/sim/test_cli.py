@@ -1,11 +1,13 @@
-"""``bearingflock sim`` command-line errors (running it is covered by the e2e tests)."""
+"""``bearingflock sim`` and ``bearingflock scenario`` command-line errors (running it is covered by the e2e tests)."""
 
 from __future__ import annotations
 
+import pytest
 import typer
 from typer.testing import CliRunner
 
 from sim.cli import sim
+from sim.scenario_cli import scenario
 
 app = typer.Typer()
 app.command()(sim)
@@ -28,3 +30,27 @@ def test_bad_options():
     assert r.exit_code == 2 and "speedup" in r.output
     r = runner.invoke(app, ["--signing-key", "/nonexistent/key"])
     assert r.exit_code == 2 and "signing key" in r.output
+
+
+def test_negative_seed_is_a_usage_error():
+    r = runner.invoke(app, ["--seed", "-1"])
+    assert r.exit_code == 2 and "--seed" in r.output
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["scale-active", "--seed", "-1"], "--seed"),
+        (["scale-active", "--duration", "nan"], "duration"),
+        (["scale-active", "--duration", "0"], "duration"),
+        (["scale-active", "--latency", "-0.1"], "latency"),
+        (["scale-active", "--bearing-noise-deg", "nan"], "bearing noise"),
+        (["scale-active", "--loss", "1"], "loss"),
+        (["no-such-scenario"], "unknown scenario"),
+    ],
+)
+def test_scenario_bad_options_exit_2(args: list[str], message: str) -> None:
+    scenario_app = typer.Typer()
+    scenario_app.command()(scenario)
+    r = runner.invoke(scenario_app, args)
+    assert r.exit_code == 2 and message in r.output, r.output
