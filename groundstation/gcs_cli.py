@@ -73,6 +73,18 @@ def _fail(message: str, code: int = EXIT_INVALID) -> typer.Exit:
     return typer.Exit(code)
 
 
+def _check_recording(src: Path) -> None:
+    """Exit 2 unless ``src`` is an MCAP file (``gcs replay`` and ``gcs plot``)."""
+    from groundstation.gcs.record import NotMcapError, check_mcap
+
+    if not src.is_file():
+        raise _fail(f"{src}: no such file")
+    try:
+        check_mcap(src)
+    except NotMcapError as exc:
+        raise _fail(str(exc)) from None
+
+
 def _off(values: list[str]) -> bool:
     return any(v.strip().lower() in ("none", "off", "") for v in values)
 
@@ -392,8 +404,7 @@ def replay(
     from groundstation.gcs.record import iter_records
     from groundstation.gcs.replay import replay as run_replay
 
-    if not src.is_file():
-        raise _fail(f"{src}: no such file")
+    _check_recording(src)
     if as_fleet is not None:
         _check_fleet(as_fleet)
     with ExitStack() as stack:
@@ -424,8 +435,7 @@ def plot(
     from groundstation.gcs.analysis import load_series
     from groundstation.gcs.plot import plot_all
 
-    if not src.is_file():
-        raise _fail(f"{src}: no such file")
+    _check_recording(src)
     series = load_series(src, fleet)
     if not series.vehicles:
         raise _fail(f"{src}: no vehicle data for fleet {series.fleet!r}", EXIT_FAILED)

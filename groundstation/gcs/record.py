@@ -98,12 +98,29 @@ class Recorder:
                 self._file = None
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The first 8 bytes of every MCAP file (MCAP specification, "Magic")."""
+
+
+class NotMcapError(ValueError):
+    """The file is not an MCAP recording at all (an unfinished one is still read)."""
+
+
+def check_mcap(path: str | Path) -> None:
+    """Raise :class:`NotMcapError` unless the file starts with the MCAP magic bytes."""
+    with Path(path).open("rb") as f:
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise NotMcapError(f"{path}: not an MCAP recording (written by `gcs record`)")
+
+
 def iter_records(path: str | Path) -> Iterator[Record]:
-    """Every message of an MCAP file in log-time order."""
+    """Every message of an MCAP file in log-time order. Raises :class:`NotMcapError` if the
+    file does not start with the MCAP magic bytes."""
     from mcap.exceptions import McapError
     from mcap.reader import NonSeekingReader, make_reader
 
     path = Path(path)
+    check_mcap(path)
     with path.open("rb") as f:
         try:
             reader = make_reader(f)

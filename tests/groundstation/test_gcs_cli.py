@@ -70,3 +70,15 @@ def test_once_json_without_vehicles_and_plot_of_a_recording(tmp_path):
     Recorder(empty, "alpha").close()
     res = run("plot", str(empty), "--out", str(tmp_path / "q"))
     assert res.exit_code == 1 and "no vehicle data" in res.output
+
+
+def test_a_file_that_is_not_mcap_is_a_usage_error(tmp_path):
+    not_mcap = tmp_path / "flight.mcap"
+    not_mcap.write_bytes(b"\xff\xd8\xff\xe0 a JPEG, not a recording")
+    for args in (
+        ["plot", str(not_mcap), "--out", str(tmp_path / "plots")],
+        ["replay", str(not_mcap)],
+    ):
+        res = run(*args)
+        assert res.exit_code == 2, (args, res.output)
+        assert "not an MCAP recording" in res.output, (args, res.output)
