@@ -18,7 +18,7 @@ MAVSDK's blocking plugin calls (``Action``, ``Offboard``, ``Telemetry``) instead
 
 What MAVSDK hides: the parser's bad-CRC and foreign-system counts (the counters stay 0), and
 stream requests (MAVSDK asks for what it needs itself; :meth:`request_streams` only waits for it).
-Tested against PX4; ArduPilot through MAVSDK is MAVSDK's own business.
+Tested against both simulated flavours: PX4 (OFFBOARD) and ArduPilot (GUIDED).
 """
 
 from __future__ import annotations

@@ -274,3 +274,31 @@ def test_mavsdk_backend_flies_px4(make_sim):
         wait_until(lambda: not link.telemetry().armed, 10.0, "disarm after landing")
     finally:
         link.close()
+
+
+def test_mavsdk_backend_flies_ardupilot_in_guided(make_sim):
+    from onboard.autopilot.mavsdk_link import MavsdkLink
+
+    server, base = make_sim("ardupilot", transport="udp")
+    link = MavsdkLink()
+    try:
+        link.connect(f"udpin:127.0.0.1:{base}", timeout_s=5.0)
+        assert link.flavour is not None and link.flavour.value == "ardupilot"
+        assert link.request_streams().ok
+        assert link.wait_ready(5.0).ok
+        assert link.arm().ok
+        assert link.takeoff(2.5).ok
+        assert -server.world.p_ned[0, 2] == pytest.approx(2.5, abs=0.25)
+
+        start = link.start_velocity_control()
+        assert start.ok, start
+        assert link.telemetry().mode == "GUIDED"
+        m = fly_arc(link, server, 1.0)
+        assert m["dpsi"] == pytest.approx(R_RADPS * m["dt"], rel=0.10)
+        assert m["dist"] == pytest.approx(m["chord"], rel=0.10)
+        assert m["u_body"] == pytest.approx(U_MPS, rel=0.10)
+
+        assert link.land(wait=True).ok
+        wait_until(lambda: not link.telemetry().armed, 10.0, "disarm after landing")
+    finally:
+        link.close()
