@@ -79,6 +79,10 @@ def _build(problem: PlacementProblem, max_iter: int, structured_hessian: bool = 
         "ipopt.print_level": 0,
         "ipopt.sb": "yes",
         "ipopt.max_iter": int(max_iter),
+        # Trust MUMPS' solution of the 151 x 151 KKT system (N = M = 10) instead of computing
+        # its residual at every step: 8% less CPU per solve at M = 10, same minima (interleaved
+        # A/B over 36 solves; docs/planner.md). Every result is re-checked with numpy anyway.
+        "ipopt.fast_step_computation": "yes",
     }
     if structured_hessian:
         opts["hess_lag"] = lagrangian_hessian(problem, w, z_vars, par, v, g_all)
