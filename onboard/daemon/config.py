@@ -25,6 +25,8 @@
     max_speed_m_s = 2.0
     max_yaw_rate_rad_s = 0.8
     stale_s = 0.5                     # inputs older than this -> hold
+    min_alt_m = 2.0                   # altitude envelope while flying the mission (m above the
+    max_alt_m = 50.0                  # autopilot's local origin; onboard/control/envelope.py)
 
     [mavlink]
     backend = "pymavlink"             # or "mavsdk"
@@ -101,6 +103,8 @@ class Limits(msgspec.Struct, forbid_unknown_fields=True):
     max_speed_m_s: float = 2.0
     max_yaw_rate_rad_s: float = 0.8
     stale_s: float = 0.5
+    min_alt_m: float = 2.0
+    max_alt_m: float = 50.0
 
 
 class MavlinkSettings(msgspec.Struct, forbid_unknown_fields=True):
@@ -201,6 +205,8 @@ def load_fleet(path: str | Path) -> Fleet:
     for name, value in msgspec.structs.asdict(config.rates).items():
         if not value > 0.0:
             raise ConfigError(f"{path}: rates.{name}: must be > 0, got {value}")
+    if not config.limits.min_alt_m < config.limits.max_alt_m:
+        raise ConfigError(f"{path}: limits.min_alt_m must be < limits.max_alt_m")
     if config.rates.core < config.rates.publish:
         raise ConfigError(f"{path}: rates.core must be >= rates.publish")
     for name, value in msgspec.structs.asdict(config.limits).items():

@@ -33,6 +33,7 @@ from messages.codec import Payload
 from messages.command import FleetCommand
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
+from onboard.control.envelope import bound_down_velocity
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
@@ -418,8 +419,16 @@ class AgentDaemon:
                 tel.stale or "rigidity_lost" in alarms or "bearings_stale" in alarms
             )
             if safe:
+                v = setpoint.v_body
+                v_down = bound_down_velocity(
+                    v[2], tel.altitude_m, c.limits.min_alt_m, c.limits.max_alt_m
+                )
+                if v_down < v[2]:
+                    alarms.append("altitude_floor")
+                elif v_down > v[2]:
+                    alarms.append("altitude_ceiling")
                 self.link.set_setpoint(
-                    setpoint.v_body, setpoint.yaw_rate_rad_s, self._frame_link_time(now_s)
+                    (v[0], v[1], v_down), setpoint.yaw_rate_rad_s, self._frame_link_time(now_s)
                 )
             else:
                 self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -26,13 +28,18 @@ def _wait_for(predicate, timeout_s: float, what: str, ev: Evaluator | None = Non
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; status {state}")
 
 
-@pytest.fixture
-def fleet(tmp_path: Path):
+@contextmanager
+def running_fleet(tmp_path: Path, extra_fleet_toml: str = "") -> Iterator[tuple]:
+    """The simulator and N daemons as processes (the demo's files, ``extra_fleet_toml``
+    appended to the fleet file); yields ``(evaluator, processes, ports, agent_args, fleet)``."""
     base = free_port_base(N + 2, span=60)
     ports = DemoPorts(zenoh=base, mavlink=base + 10 + N, gcs=base + 9)
     plan = plan_formation(N, seed=1)
     name = f"t{base}"
     fleet_path = write_demo_files(tmp_path, plan, ports, name, "formation-active")
+    if extra_fleet_toml:
+        with fleet_path.open("a") as f:
+            f.write(extra_fleet_toml)
     procs = Processes(tmp_path)
     procs.start(
         "sim",
@@ -59,6 +66,18 @@ def fleet(tmp_path: Path):
     finally:
         ev.close()
         procs.stop()
+
+
+@pytest.fixture
+def fleet(tmp_path: Path):
+    with running_fleet(tmp_path) as running:
+        yield running
+
+
+@pytest.fixture
+def fleet_with():
+    """``fleet_with(tmp_path, extra_fleet_toml)``: :func:`running_fleet` as a context manager."""
+    return running_fleet
 
 
 @pytest.fixture

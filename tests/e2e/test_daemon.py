@@ -1,6 +1,8 @@
 """The onboard daemon end to end: the simulator and three daemons as processes, real UDP
-MAVLink, real Zenoh on loopback. Faults: malformed peer payloads and MAVLink garbage are
-counted and dropped; a killed agent is noticed by its peers and its autopilot fails safe; a
+MAVLink, real Zenoh on loopback. The fleet file puts the altitude floor (``[limits]
+min_alt_m``) above the take-off height: once flying the mission, every vehicle climbs above it
+and reports ``altitude_floor`` meanwhile. Faults: malformed peer payloads and MAVLink garbage
+are counted and dropped; a killed agent is noticed by its peers and its autopilot fails safe; a
 restarted agent rejoins; a land command brings everyone down."""
 
 from __future__ import annotations
@@ -13,10 +15,17 @@ import pytest
 from pymavlink import mavutil
 
 pytestmark = pytest.mark.e2e
-N = 3  # vehicles in the `fleet` fixture (conftest.py)
+N = 3  # vehicles in the fleet (conftest.py)
+FLOOR_M = 9.0
+"""Altitude floor of the fleet file; the daemons take off to 5 m."""
 
 
-def test_daemons_fly_survive_bad_input_and_faults(fleet, wait_for):
+def test_daemons_fly_survive_bad_input_and_faults(tmp_path, fleet_with, wait_for):
+    with fleet_with(tmp_path, f"[limits]\nmin_alt_m = {FLOOR_M}\n") as fleet:
+        fly_survive_bad_input_and_faults(fleet, wait_for)
+
+
+def fly_survive_bad_input_and_faults(fleet, wait_for) -> None:
     ev, procs, ports, agent_args, name = fleet
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{ports.gcs}", source_system=250)
 
@@ -27,6 +36,20 @@ def test_daemons_fly_survive_bad_input_and_faults(fleet, wait_for):
         )
 
     wait_for(all_flying, 60.0, "every daemon flying in OFFBOARD", ev)
+
+    # the altitude envelope lifts everyone from the 5 m take-off above the floor
+    heights = [-float(tr.p_ned[2]) for tr in ev.truth.values()]
+    assert all(h < FLOOR_M - 2.0 for h in heights), heights
+    floor_alarm_seen: set[int] = set()
+
+    def above_floor() -> bool:
+        floor_alarm_seen.update(k for k, s in ev.snapshot().items() if "altitude_floor" in s.alarms)
+        return len(ev.truth) == N and all(
+            -float(tr.p_ned[2]) > FLOOR_M - 0.3 for tr in ev.truth.values()
+        )
+
+    wait_for(above_floor, 30.0, f"every vehicle above the {FLOOR_M} m floor", ev)
+    assert floor_alarm_seen == set(range(N))
 
     # bad input on the peer keys and on an agent's MAVLink port
     bad = [

@@ -64,6 +64,11 @@ def test_defaults_and_urls(tmp_path):
         ),
         ('formation = "formation.toml"\n[rigidity]\nwarmup_s = -1.0\n', "rigidity.warmup_s"),
         ('formation = "formation.toml"\n[rigidity]\ngraph = "some"\n', "rigidity.graph"),
+        (
+            'formation = "formation.toml"\n[limits]\nmin_alt_m = 30.0\nmax_alt_m = 20.0\n',
+            "limits.min_alt_m must be < limits.max_alt_m",
+        ),
+        ('formation = "formation.toml"\n[limits]\nmin_alt_m = nan\n', "limits.min_alt_m"),
     ],
 )
 def test_bad_fleet_files(tmp_path, fleet, needle):
