@@ -235,7 +235,16 @@ def _fleet_command(
         else:
             targets = sorted(autopilots if needs_mav else agents)
         if not targets:
-            raise _fail(f"{action}: no vehicles heard within {discover_s:g} s", EXIT_FAILED)
+            heard_on = []
+            if needs_zen:
+                heard_on.append(f"agents of fleet {fleet!r} on Zenoh (--fleet, --zenoh)")
+            if needs_mav:
+                heard_on.append("autopilots on MAVLink (--mavlink)")
+            raise _fail(
+                f"{action}: no vehicles heard within {discover_s:g} s; listened for "
+                + " and ".join(heard_on),
+                EXIT_FAILED,
+            )
         listing = ", ".join(str(i) for i in targets)
         if not yes and not typer.confirm(f"{action} vehicles {listing} of fleet {fleet!r}?"):
             typer.echo("not confirmed: nothing sent")

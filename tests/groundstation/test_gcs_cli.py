@@ -82,3 +82,10 @@ def test_a_file_that_is_not_mcap_is_a_usage_error(tmp_path):
         res = run(*args)
         assert res.exit_code == 2, (args, res.output)
         assert "not an MCAP recording" in res.output, (args, res.output)
+
+
+def test_a_command_that_hears_nobody_says_where_it_listened():
+    res = run("start", "--all", "--yes", "--fleet", "nobody", "--discover", "0.2",
+              "--zenoh", "tcp/127.0.0.1:1")  # fmt: skip
+    assert res.exit_code == 1, res.output
+    assert "no vehicles heard" in res.output and "fleet 'nobody'" in res.output, res.output
