@@ -256,6 +256,34 @@ def result_name(result: int | None) -> str:
     return _RESULT_NAMES.get(result, f"RESULT_{result}")
 
 
+SERIAL_DEFAULT_BAUD = 115200
+"""pymavlink's default; PX4's companion port (TELEM2) runs at 921600 by default."""
+
+
+def serial_device(url: str) -> tuple[str, int] | None:
+    """A serial link URL as ``(device, baud)``; ``None`` for a network URL.
+
+    Accepted: ``/dev/ttyACM0``, ``/dev/ttyACM0:921600``, ``serial:/dev/ttyACM0:921600``,
+    MAVSDK's ``serial:///dev/ttyACM0:921600`` and ``COM3[:57600]``. Without a baud rate,
+    :data:`SERIAL_DEFAULT_BAUD`. Raises ``ValueError`` for a baud rate that is not a positive
+    integer.
+    """
+    rest = url
+    for prefix in ("serial://", "serial:"):
+        if url.startswith(prefix):
+            rest = url[len(prefix) :]
+            break
+    else:
+        if not (url.startswith("/dev/") or url.upper().startswith("COM")):
+            return None
+    device, sep, baud_text = rest.rpartition(":")
+    if not sep:
+        return rest, SERIAL_DEFAULT_BAUD
+    if not baud_text.isdigit() or int(baud_text) <= 0:
+        raise ValueError(f"{url!r}: the baud rate after the last ':' must be a positive integer")
+    return device, int(baud_text)
+
+
 class LinkError(RuntimeError):
     """The link could not be opened (bad URL, no autopilot heard, unknown autopilot)."""
 

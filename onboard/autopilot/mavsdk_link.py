@@ -37,6 +37,7 @@ from onboard.autopilot.base import (
     LinkError,
     LinkEvent,
     StreamState,
+    serial_device,
 )
 from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
@@ -66,6 +67,9 @@ def mavsdk_url(url: str) -> str:
     """pymavlink-style ``udpin:HOST:PORT`` / ``udpout:`` / ``tcp:`` / serial -> MAVSDK URL."""
     if "://" in url:
         return url
+    serial = serial_device(url)
+    if serial is not None:
+        return f"serial://{serial[0]}:{serial[1]}"
     scheme, _, rest = url.partition(":")
     if scheme in ("udpin", "udpout"):
         return f"{scheme}://{rest}"
@@ -73,8 +77,6 @@ def mavsdk_url(url: str) -> str:
         return f"tcpout://{rest}"
     if scheme == "tcpin":
         return f"tcpin://{rest}"
-    if url.startswith("/dev/") or url.upper().startswith("COM"):
-        return f"serial://{url}"
     raise ValueError(f"cannot translate {url!r} to a MAVSDK connection URL")
 
 

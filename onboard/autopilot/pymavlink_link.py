@@ -48,6 +48,7 @@ from onboard.autopilot.base import (
     LinkError,
     StreamState,
     result_name,
+    serial_device,
 )
 from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
@@ -103,8 +104,9 @@ class PymavlinkLink(LinkBookkeeping):
     def connect(
         self, url: str, timeout_s: float = 10.0, request_streams: bool | None = None
     ) -> None:
-        """Open ``url`` (pymavlink syntax: ``udpin:HOST:PORT``, ``udpout:``, ``tcp:HOST:PORT``,
-        a serial device), wait for an autopilot heartbeat and start the threads.
+        """Open ``url`` (pymavlink syntax: ``udpin:HOST:PORT``, ``udpout:``, ``tcp:HOST:PORT``;
+        or a serial device, ``serial:/dev/ttyACM0:921600``, see :func:`serial_device`), wait for
+        an autopilot heartbeat and start the threads.
 
         ``request_streams``: ask for telemetry (:meth:`request_streams`); ``None`` asks an
         ArduPilot (which streams nothing unasked) and leaves a PX4's defaults alone.
@@ -113,13 +115,16 @@ class PymavlinkLink(LinkBookkeeping):
         if self._conn is not None:
             raise LinkError("already connected")
         try:
+            serial = serial_device(url)  # pymavlink would read "/dev/ttyACM0:921600" as UDP
+            device, port = (url, {}) if serial is None else (serial[0], {"baud": serial[1]})
             self._conn = mavutil.mavlink_connection(
-                url,
+                device,
                 source_system=self.config.source_system,
                 source_component=self.config.source_component,
                 autoreconnect=True,
+                **port,
             )
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, ImportError) as exc:
             raise LinkError(f"cannot open {url!r}: {exc}") from exc
         self._start_thread(self._receive_loop, "autopilot-rx")
         with self._cond:

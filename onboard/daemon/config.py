@@ -30,7 +30,8 @@
 
     [mavlink]
     backend = "pymavlink"             # or "mavsdk"
-    url = "udpin:127.0.0.1:{port}"    # {port} = port_base + id, {id} = agent id
+    url = "udpin:127.0.0.1:{port}"    # {port} = port_base + id, {id} = agent id; on a
+                                      # companion computer's UART: "serial:/dev/ttyAMA0:921600"
     port_base = 14540
 
     [zenoh]

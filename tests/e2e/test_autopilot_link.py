@@ -302,3 +302,39 @@ def test_mavsdk_backend_flies_ardupilot_in_guided(make_sim):
         wait_until(lambda: not link.telemetry().armed, 10.0, "disarm after landing")
     finally:
         link.close()
+
+
+def test_pymavlink_link_over_a_serial_device_at_921600_baud():
+    """A companion computer's UART: the link opens a real tty (a pseudo-terminal here) at the
+    baud rate in its URL and hears the autopilot's heartbeats through pyserial."""
+    import os
+    import threading
+
+    from pymavlink.dialects.v20 import common
+
+    controller_fd, device_fd = os.openpty()
+    device = os.ttyname(device_fd)
+    autopilot = common.MAVLink(None, srcSystem=1, srcComponent=1)
+    stop = threading.Event()
+
+    def heartbeats() -> None:
+        while not stop.is_set():
+            msg = autopilot.heartbeat_encode(
+                mv.MAV_TYPE_QUADROTOR, mv.MAV_AUTOPILOT_PX4, 0, 0, mv.MAV_STATE_STANDBY
+            )
+            os.write(controller_fd, msg.pack(autopilot))
+            stop.wait(0.1)
+
+    writer = threading.Thread(target=heartbeats, daemon=True)
+    writer.start()
+    link = PymavlinkLink()
+    try:
+        link.connect(f"serial:{device}:921600", timeout_s=5.0)
+        assert link.flavour is not None and link.flavour.value == "px4"
+        assert link.target_system == 1
+    finally:
+        link.close()
+        stop.set()
+        writer.join(1.0)
+        os.close(controller_fd)
+        os.close(device_fd)

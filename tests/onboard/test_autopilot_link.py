@@ -14,7 +14,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from messages import mavlink as mv
-from onboard.autopilot.base import LinkConfig, StreamState
+from onboard.autopilot.base import LinkConfig, StreamState, serial_device
 from onboard.autopilot.mavsdk_link import map_result, mavsdk_url
 from onboard.autopilot.pymavlink_link import PymavlinkLink
 
@@ -290,9 +290,24 @@ def test_mavsdk_helpers():
     assert mavsdk_url("tcp:127.0.0.1:5770") == "tcpout://127.0.0.1:5770"
     assert mavsdk_url("udpin://0.0.0.0:14540") == "udpin://0.0.0.0:14540"
     assert mavsdk_url("/dev/ttyACM0:57600") == "serial:///dev/ttyACM0:57600"
+    assert mavsdk_url("serial:/dev/ttyAMA0:921600") == "serial:///dev/ttyAMA0:921600"
+    assert mavsdk_url("/dev/ttyUSB0") == "serial:///dev/ttyUSB0:115200"
     with pytest.raises(ValueError):
         mavsdk_url("carrier-pigeon")
     assert map_result("SUCCESS") == (mv.RESULT_ACCEPTED, False)
     assert map_result("TIMEOUT") == (None, True)
     assert map_result("COMMAND_DENIED") == (mv.RESULT_DENIED, True)
     assert map_result("SOMETHING_NEW") == (mv.RESULT_FAILED, False)
+
+
+def test_serial_urls():
+    assert serial_device("udpin:127.0.0.1:14540") is None
+    assert serial_device("tcp:127.0.0.1:5760") is None
+    assert serial_device("/dev/ttyACM0") == ("/dev/ttyACM0", 115200)
+    assert serial_device("/dev/ttyACM0:921600") == ("/dev/ttyACM0", 921600)
+    assert serial_device("serial:/dev/ttyAMA0:57600") == ("/dev/ttyAMA0", 57600)
+    assert serial_device("serial:///dev/ttyAMA0:57600") == ("/dev/ttyAMA0", 57600)
+    assert serial_device("COM3:57600") == ("COM3", 57600)
+    for bad in ("/dev/ttyACM0:fast", "serial:/dev/ttyACM0:-1", "/dev/ttyACM0:0"):
+        with pytest.raises(ValueError, match="baud"):
+            serial_device(bad)
