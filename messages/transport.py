@@ -43,10 +43,9 @@ def zenoh_config(settings: ZenohSettings) -> Any:
     """Build a ``zenoh.Config`` (Zenoh is imported here, not at module import)."""
     import zenoh
 
-    if settings.config_file:
-        config = zenoh.Config.from_file(str(Path(settings.config_file)))
-    else:
-        config = zenoh.Config()
+    if settings.config_file:  # the file is the whole configuration (TLS, routers, ...)
+        return zenoh.Config.from_file(str(Path(settings.config_file)))
+    config = zenoh.Config()
     config.insert_json5("mode", json.dumps(settings.mode))
     if settings.listen:
         config.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))

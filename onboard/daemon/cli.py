@@ -51,7 +51,6 @@ def agent(
 
     from messages.rigidity import RIGIDITY_KINDS
     from messages.sim import SimClock, clock_key
-    from messages.transport import ZenohSettings, loopback_endpoint
     from onboard.autopilot import open_link
     from onboard.autopilot.base import LinkConfig
     from onboard.daemon.bearings import SimCameraSource
@@ -80,13 +79,7 @@ def agent(
         typer.echo(f"error: --bearings must be sim or camera, got {bearings!r}", err=True)
         raise typer.Exit(2)
     pipelines = _camera_pipelines(fleet, camera, markers) if bearings == "camera" else []
-    others = [fleet.zenoh_port(j) for j in range(fleet.n) if j != agent_id]
-    settings = ZenohSettings(
-        mode=c.zenoh.mode,
-        listen=[loopback_endpoint(fleet.zenoh_port(agent_id))] if c.zenoh.mode == "peer" else [],
-        connect=[loopback_endpoint(p) for p in [fleet.sim_zenoh_port(), *others]] + c.zenoh.connect,
-        config_file=c.zenoh.config_file or None,
-    )
+    settings = fleet.zenoh_settings(agent_id)
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
     neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}

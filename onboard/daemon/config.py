@@ -37,10 +37,13 @@
     [zenoh]
     mode = "peer"                     # or "client" with a router in connect
     port_base = 7447                  # agent i listens on port_base + 1 + i; the simulator on port_base
-    connect = []                      # extra endpoints (a router, remote peers)
+    listen = []                       # endpoints besides loopback, "{port}" = this agent's
+                                      # port: ["tcp/0.0.0.0:{port}"] on a team's network
+    connect = []                      # extra endpoints (a router, the other vehicles)
+    multicast_scouting = false        # find peers on the local network by UDP multicast
     inject_loss = 0.0                 # fault injection (tests, demos): drop this fraction of
                                       # the peer messages received, at random
-    config_file = ""                  # a full Zenoh JSON5 config (TLS...), overrides the above
+    config_file = ""                  # a full Zenoh JSON5 config (TLS...): replaces the above
 
     [rigidity]                        # paper 003's layer on top of the mode (docs/demo.md)
     maintenance = false               # rigidity maintenance + collision avoidance (eq. 19-31)
@@ -78,6 +81,7 @@ from typing import Literal
 import msgspec
 
 from messages.formation import Formation, FormationError, load_formation
+from messages.transport import ZenohSettings, loopback_endpoint
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
@@ -117,7 +121,9 @@ class MavlinkSettings(msgspec.Struct, forbid_unknown_fields=True):
 class ZenohSection(msgspec.Struct, forbid_unknown_fields=True):
     mode: Literal["peer", "client"] = "peer"
     port_base: int = 7447
+    listen: list[str] = msgspec.field(default_factory=list)
     connect: list[str] = msgspec.field(default_factory=list)
+    multicast_scouting: bool = False
     config_file: str = ""
     inject_loss: float = 0.0
 
@@ -180,6 +186,28 @@ class Fleet(msgspec.Struct, frozen=True):
 
     def sim_zenoh_port(self) -> int:
         return self.config.zenoh.port_base
+
+    def zenoh_settings(self, agent_id: int) -> ZenohSettings:
+        """How agent ``agent_id`` joins the fleet's Zenoh network: it listens on its loopback
+        port (and on ``[zenoh] listen``, ``{port}`` filled in) and connects to the simulator's
+        and every other agent's loopback ports and to ``[zenoh] connect``."""
+        z = self.config.zenoh
+        port = self.zenoh_port(agent_id)
+        others = [self.zenoh_port(j) for j in range(self.n) if j != agent_id]
+        extra_listen = [e.replace("{port}", str(port)) for e in z.listen]
+        own = loopback_endpoint(port)
+        # a wildcard on the same port covers loopback, and both cannot bind it
+        covered = any(
+            e.split("/", 1)[-1] in (f"0.0.0.0:{port}", f"[::]:{port}") for e in extra_listen
+        )
+        loopback = [] if covered or z.mode != "peer" else [own]
+        return ZenohSettings(
+            mode=z.mode,
+            listen=[*loopback, *extra_listen],
+            connect=[loopback_endpoint(p) for p in [self.sim_zenoh_port(), *others]] + z.connect,
+            multicast_scouting=z.multicast_scouting,
+            config_file=str(self.resolve(z.config_file)) if z.config_file else None,
+        )
 
     def resolve(self, name: str) -> Path:
         """A file named in the fleet file, relative to the fleet file's directory."""

@@ -136,3 +136,52 @@ def test_rigidity_section_reaches_the_core_and_refuses_a_safe_level_above_the_pl
     # off by default: the core has no rigidity layer
     plain = agent_config(load_fleet(write(tmp_path, 'formation = "formation.toml"\n')), 0)
     assert not plain.rigidity_maintenance and plain.rigidity_edges == ()
+
+
+def test_zenoh_settings_on_loopback_by_default(tmp_path):
+    fleet = load_fleet(write(tmp_path, 'formation = "formation.toml"\n'))
+    s = fleet.zenoh_settings(1)
+    assert list(s.listen) == ["tcp/127.0.0.1:7449"]
+    assert list(s.connect) == ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:7448", "tcp/127.0.0.1:7450"]
+    assert not s.multicast_scouting and s.config_file is None
+
+
+def test_zenoh_settings_for_a_team_network(tmp_path):
+    text = (
+        'formation = "formation.toml"\n[zenoh]\nlisten = ["tcp/0.0.0.0:{port}"]\n'
+        'connect = ["tcp/192.168.1.20:7448"]\nmulticast_scouting = true\n'
+        'config_file = "zenoh.json5"\n'
+    )
+    fleet = load_fleet(write(tmp_path, text))
+    s = fleet.zenoh_settings(2)
+    assert list(s.listen) == ["tcp/0.0.0.0:7450"]  # the wildcard covers loopback
+    assert list(s.connect)[-1] == "tcp/192.168.1.20:7448"
+    assert s.multicast_scouting
+    assert s.config_file == str(tmp_path / "zenoh.json5")
+    text = 'formation = "formation.toml"\n[zenoh]\nlisten = ["tcp/10.0.0.3:{port}"]\n'
+    s = load_fleet(write(tmp_path, text)).zenoh_settings(0)
+    assert list(s.listen) == ["tcp/127.0.0.1:7448", "tcp/10.0.0.3:7448"]
+
+
+def test_an_agent_listening_on_every_interface_is_reachable_off_loopback(tmp_path):
+    """A real session from the settings: a peer reaches it at 127.0.0.2, which only the
+    wildcard listener accepts (the loopback one is bound to 127.0.0.1)."""
+    from messages.transport import ZenohSettings, open_session
+    from sim.server import free_port_base
+
+    base = free_port_base(4, span=10)
+    text = f'formation = "formation.toml"\n[zenoh]\nport_base = {base}\nlisten = ["tcp/0.0.0.0:{{port}}"]\n'
+    settings = load_fleet(write(tmp_path, text)).zenoh_settings(0)
+    agent = open_session(settings)
+    peer = open_session(ZenohSettings(connect=[f"tcp/127.0.0.2:{base + 1}"]))
+    got: list[bytes] = []
+    try:
+        agent.declare_subscriber("bf/t/probe", lambda s: got.append(s.payload.to_bytes()))
+        deadline = time.monotonic() + 5.0
+        while not got and time.monotonic() < deadline:
+            peer.put("bf/t/probe", b"hello")
+            time.sleep(0.1)
+    finally:
+        peer.close()
+        agent.close()
+    assert got and bytes(got[0]) == b"hello"
