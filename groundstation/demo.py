@@ -399,6 +399,29 @@ class Processes:
                 p.wait()
 
 
+def simulator_args(
+    vehicles: int,
+    flavour: str,
+    out: Path,
+    ports: DemoPorts,
+    fleet: str,
+    seed: int = 0,
+    speedup: float = 1.0,
+) -> list[str]:
+    """``python`` arguments of the demo's simulator: the layout of :func:`write_demo_files`,
+    MAVLink over UDP where the fleet file's daemons dial (for either flavour: the ArduPilot
+    flavour would listen on TCP like SITL), the virtual camera on Zenoh."""
+    return [
+        "-m", "sim.cli", "--vehicles", str(vehicles), "--flavour", flavour,
+        "--layout", str(out / "start.toml"), "--zenoh", loopback_endpoint(ports.zenoh),
+        "--fleet", fleet, "--transport", "udp",
+        "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
+        "--bind-base", str(ports.mavlink + vehicles + 5),
+        "--camera-fov", str(CAMERA_FOV_DEG), "--camera-range", str(CAMERA_RANGE_M),
+        "--seed", str(seed), "--quiet", "--speedup", str(speedup),
+    ]  # fmt: skip
+
+
 def run_demo(
     vehicles: int,
     flavour: str,
@@ -451,16 +474,8 @@ def run_demo(
     try:
         procs.start(
             "sim",
-            [
-                "-m", "sim.cli", "--vehicles", str(vehicles), "--flavour", flavour,
-                "--layout", str(out / "start.toml"), "--zenoh", loopback_endpoint(ports.zenoh),
-                "--fleet", fleet, "--transport", "udp",  # the fleet file's links, any flavour
-                "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
-                "--bind-base", str(ports.mavlink + vehicles + 5),
-                "--camera-fov", str(CAMERA_FOV_DEG), "--camera-range", str(CAMERA_RANGE_M), "--seed", str(seed), "--quiet",
-                "--speedup", str(speedup), *camera_args,
-            ],
-        )  # fmt: skip
+            [*simulator_args(vehicles, flavour, out, ports, fleet, seed, speedup), *camera_args],
+        )
         for i in range(vehicles):
             procs.start(
                 f"agent{i}",
