@@ -110,6 +110,19 @@ def test_cli_json_has_the_documented_keys(tmp_path: Path) -> None:
     assert data["objective"] == pytest.approx(max(data["setpoint_traces"]))
 
 
+def test_cli_compile_caches_the_derivatives(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("BEARINGFLOCK_CACHE_DIR", str(tmp_path / "cache"))
+    args = ("-m", "2", "--json", "--starts", "2", "--seed", "4")
+    _, plain, _ = _run(tmp_path, GOOD, *args)
+    code, out, _ = _run(tmp_path, GOOD, *args, "--compile")
+    assert code == 0
+    assert json.loads(out)["objective"] == pytest.approx(json.loads(plain)["objective"], rel=1e-9)
+    assert json.loads(out)["details"]["build_seconds"] > 0.0
+    assert len(list((tmp_path / "cache" / "planner").glob("planner_*.so"))) == 3
+
+
 def test_cli_greedy_table_and_plot(tmp_path: Path) -> None:
     figure = tmp_path / "placement.png"
     code, out, _ = _run(tmp_path, GOOD, "-m", "2", "--method", "greedy", "--plot", str(figure))
@@ -128,6 +141,7 @@ def test_cli_greedy_table_and_plot(tmp_path: Path) -> None:
         (GOOD, ["-m", "0"]),
         (GOOD, ["-m", "2", "--method", "greedy", "--fov", "90"]),
         (GOOD, ["-m", "2", "--fov", "270"]),
+        (GOOD, ["-m", "2", "--method", "greedy", "--compile"]),
     ],
 )
 def test_cli_bad_input_exits_2_with_one_line(tmp_path: Path, text: str, args: list[str]) -> None:
