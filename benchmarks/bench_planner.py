@@ -24,7 +24,9 @@ ISRES budget: ``--isres-evals`` objective evaluations per variable (3M variables
 Times are wall-clock and process CPU (``time.process_time``): the machine is shared, and the
 CPU time is the less load-sensitive of the two. ``--table3`` runs only the timing protocol
 (N = 10, M in {2, 5, 10}), adding the IPOPT solve with casadi's automatic Hessian
-(``IpoptPlacer(structured_hessian=False)``) as the baseline of the structured one.
+(``IpoptPlacer(structured_hessian=False)``) as the baseline of the structured one, and the
+solve with its derivatives compiled to C (``IpoptPlacer(compiled=True)``, ``plan --compile``;
+the one-time compilation is timed separately).
 
 EKF validation: ``python benchmarks/bench_planner_ekf.py`` (``--ekf`` here runs it).
 
@@ -101,10 +103,11 @@ class Cell:
 def run_cell(
     n: int, m: int, instances: int, runs: int, evals_per_var: int, placer: IpoptPlacer,
     sigma_m: float = SIGMA_M, ad_placer: IpoptPlacer | None = None,
-    isres_runs: int | None = None,
+    isres_runs: int | None = None, compiled_placer: IpoptPlacer | None = None,
 ) -> Cell:  # fmt: skip
-    """One table cell; ``ad_placer`` adds the automatic-Hessian baseline; ISRES (and so the
-    gaps) only on the first ``isres_runs`` runs of each instance (default: all)."""
+    """One table cell; ``ad_placer`` adds the automatic-Hessian baseline and
+    ``compiled_placer`` the solve with derivatives compiled to C; ISRES (and so the gaps) only
+    on the first ``isres_runs`` runs of each instance (default: all)."""
     cell = Cell()
     for i in range(instances):
         problem = random_instance(n, m, i, sigma_m)
@@ -114,6 +117,11 @@ def run_cell(
             warm = cell.timed("ipopt warm", placer.solve, problem, seed=r, starts=1)
             multi = cell.timed("ipopt 5 starts warm", placer.solve, problem, seed=r, starts=5)
             assert abs(cold.objective - warm.objective) <= 1e-9 * cold.objective
+            if compiled_placer is not None:
+                fast = cell.timed(
+                    "ipopt warm, compiled", compiled_placer.solve, problem, seed=r, starts=1
+                )
+                assert abs(fast.objective - warm.objective) <= 1e-9 * warm.objective
             if ad_placer is not None:
                 ad = cell.timed(
                     "ipopt warm, AD Hessian", ad_placer.solve, problem, seed=r, starts=1
@@ -250,12 +258,19 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def table_iii_only(instances: int, runs: int) -> int:
-    """Timings of Table III (greedy, IPOPT cold/warm/5 starts, AD-Hessian baseline, ISRES on
-    the first run of each instance)."""
+    """Timings of Table III (greedy, IPOPT cold/warm/5 starts, AD-Hessian baseline, IPOPT
+    with compiled derivatives, ISRES on the first run of each instance)."""
     placer, ad_placer = IpoptPlacer(), IpoptPlacer(structured_hessian=False)
+    compiled = IpoptPlacer(compiled=True)
     ms = (2, 5, 10)
     print(f"Table III timings: N=10, {instances} instances x {runs} runs (ISRES: 1 run each)")
-    cells = {m: run_cell(10, m, instances, runs, 1000, placer, ad_placer=ad_placer, isres_runs=1)
+    for m in ms:  # compile (or load from the cache) before timing anything
+        t0 = time.perf_counter()
+        compiled.prepare(random_instance(10, m, 0))
+        print(f"M={m}: compiled derivatives ready in {time.perf_counter() - t0:.1f} s"
+              " (compiled once per shape, then cached)", flush=True)  # fmt: skip
+    cells = {m: run_cell(10, m, instances, runs, 1000, placer, ad_placer=ad_placer, isres_runs=1,
+                         compiled_placer=compiled)
              for m in ms}  # fmt: skip
     print_table_iii(cells, ms)
     return 0
