@@ -79,27 +79,49 @@ def compile_functions(
         gen.add(f)
         source = gen.dump()
         libraries.append((f.name(), source, library_path(source, cc, directory)))
+    _build_missing(libraries, cc, directory)
+    try:
+        return [ca.external(name, str(so)) for name, _, so in libraries]
+    except RuntimeError:  # a damaged cache entry (a full disk, a killed copy): build it again
+        for _, _, so in libraries:
+            so.unlink(missing_ok=True)
+        _build_missing(libraries, cc, directory)
+        return [ca.external(name, str(so)) for name, _, so in libraries]
+
+
+def _build_missing(libraries: list[tuple[str, str, Path]], cc: str, directory: Path) -> None:
     missing = [lib for lib in libraries if not lib[2].exists()]
-    if missing:
-        directory.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=directory) as tmp:
-            builds = []
-            for name, source, so in missing:
-                c_file = Path(tmp) / f"{name}.c"
-                c_file.write_text(source)
-                built = Path(tmp) / so.name
-                cmd = [cc, *CFLAGS, str(c_file), "-o", str(built), "-lm"]
-                proc = subprocess.Popen(
-                    cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-                )
-                builds.append((proc, built, so))
-            errors = []
-            for proc, built, so in builds:
-                output, _ = proc.communicate()
-                if proc.returncode == 0:
-                    os.replace(built, so)
-                else:
-                    errors.append(" ".join(output.strip().splitlines()[-5:]))
-            if errors:
-                raise PlannerError(f"compiling the planner's derivatives failed: {errors[0]}")
-    return [ca.external(name, str(so)) for name, _, so in libraries]
+    if not missing:
+        return
+    try:
+        _build(missing, cc, directory)
+    except OSError as exc:
+        raise PlannerError(
+            f"cannot build the planner's derivatives in {directory} ({exc}); "
+            "set BEARINGFLOCK_CACHE_DIR to a writable directory"
+        ) from None
+
+
+def _build(missing: list[tuple[str, str, Path]], cc: str, directory: Path) -> None:
+    """Compile each ``(name, source, library)`` side by side into ``directory``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=directory) as tmp:
+        builds = []
+        for name, source, so in missing:
+            c_file = Path(tmp) / f"{name}.c"
+            c_file.write_text(source)
+            built = Path(tmp) / so.name
+            cmd = [cc, *CFLAGS, str(c_file), "-o", str(built), "-lm"]
+            proc = subprocess.Popen(
+                cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+            )
+            builds.append((proc, built, so))
+        errors = []
+        for proc, built, so in builds:
+            output, _ = proc.communicate()
+            if proc.returncode == 0:
+                os.replace(built, so)
+            else:
+                errors.append(" ".join(output.strip().splitlines()[-5:]))
+        if errors:
+            raise PlannerError(f"compiling the planner's derivatives failed: {errors[0]}")

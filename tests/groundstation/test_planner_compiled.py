@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -42,13 +44,32 @@ def test_compiled_libraries_are_cached(tmp_path: Path) -> None:
 
 
 def test_a_failing_compiler_is_a_planner_error(tmp_path: Path) -> None:
+    with pytest.raises(PlannerError, match="compiling the planner's derivatives failed"):
+        compile_functions([_sine()], cache_dir=tmp_path, compiler=shutil.which("false"))
+    assert not list(tmp_path.glob("*.so"))
+
+
+def _sine() -> Any:
     import casadi as ca
 
     x = ca.SX.sym("x")
-    f = ca.Function("f", [x], [ca.sin(x)])
-    with pytest.raises(PlannerError, match="compiling the planner's derivatives failed"):
-        compile_functions([f], cache_dir=tmp_path, compiler=shutil.which("false"))
-    assert not list(tmp_path.glob("*.so"))
+    return ca.Function("f", [x], [ca.sin(x)])
+
+
+def test_an_unwritable_cache_is_a_planner_error(tmp_path: Path) -> None:
+    not_a_dir = tmp_path / "file"
+    not_a_dir.write_text("")
+    with pytest.raises(PlannerError, match="BEARINGFLOCK_CACHE_DIR"):
+        compile_functions([_sine()], cache_dir=not_a_dir / "planner")
+
+
+def test_a_damaged_cache_entry_is_rebuilt(tmp_path: Path) -> None:
+    compile_functions([_sine()], cache_dir=tmp_path)
+    (so,) = tmp_path.glob("*.so")
+    so.write_bytes(b"truncated")
+    (f,) = compile_functions([_sine()], cache_dir=tmp_path)
+    assert float(f(0.5)) == pytest.approx(math.sin(0.5))
+    assert so.stat().st_size > 1000
 
 
 def test_missing_compiler_is_named(monkeypatch: pytest.MonkeyPatch) -> None:
