@@ -119,13 +119,16 @@ def test_tracking_flow_points_camera_at_target_and_holds_radius() -> None:
 
 
 def test_rigidity_action_increases_the_weighted_eigenvalue() -> None:
-    rng = np.random.default_rng(5)
+    # cameras towards the centroid: a rigid start (with seed 5 and cameras 0.5 rad off it, as
+    # before, the eigenvalue was 2e-16 and the comparison below one of round-off)
+    rng = np.random.default_rng(4)
     p = rng.uniform(-2.0, 2.0, (5, 3)) + np.array([0.0, 0.0, -5.0])
     c = p.mean(axis=0)
-    yaw = np.arctan2(c[1] - p[:, 1], c[0] - p[:, 0]) + 0.5
+    yaw = np.arctan2(c[1] - p[:, 1], c[0] - p[:, 0])
     model = SensingModel(100.0, 8.0)
     edges = complete_graph(5)
     lam, gp, gy = weighted_eigenvalue_gradient(p, yaw, edges, model)
+    assert lam > 1e-3
     gains = ctl.MaintenanceGains(lambda_min=0.5 * lam, lambda_safe=2.0 * lam, k_rigidity=0.1)
     dt = 1e-3
     p_new, yaw_new = p.copy(), yaw.copy()
@@ -134,7 +137,7 @@ def test_rigidity_action_increases_the_weighted_eigenvalue() -> None:
         p_new[i] += dt * rot_z(yaw[i]) @ u
         yaw_new[i] += dt * w
     lam_new = weighted_angle_rigidity_eigenvalue(p_new, yaw_new, edges, model)[0]
-    assert lam_new > lam
+    assert lam_new > lam * (1.0 + 1e-9)
 
 
 def test_camera_angular_velocity_reduces_to_yaw_rate() -> None:
