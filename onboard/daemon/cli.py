@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import sys
 import time
@@ -17,7 +18,7 @@ SIM_CLOCK_WAIT_S = 10.0
 
 def agent(
     agent_id: Annotated[int, typer.Option("--id", help="This vehicle's agent id (0-based index).")],
-    config: Annotated[Path, typer.Option("--config", help="Fleet file (TOML), see docs/agent.md.")],
+    config: Annotated[Path, typer.Option("--config", help="Fleet file (TOML): docs/flying.md.")],
     mavlink: Annotated[
         str | None,
         typer.Option(help="Autopilot URL (pymavlink style); default from the fleet file."),
@@ -45,6 +46,13 @@ def agent(
         str | None,
         typer.Option(help="Local OpenCV capture (index, file or URL) instead of Zenoh images."),
     ] = None,
+    clock_offset: Annotated[
+        float,
+        typer.Option(
+            help="Fault injection: shift this daemon's clock by this many seconds, to rehearse "
+            "a vehicle whose clock disagrees with the team's (its peers hold; never in flight)."
+        ),
+    ] = 0.0,
 ) -> None:
     """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
     import msgspec
@@ -55,7 +63,7 @@ def agent(
     from onboard.autopilot.base import LinkConfig
     from onboard.daemon.bearings import SimCameraSource
     from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
-    from onboard.daemon.clock import SimClockFollower, WallClock
+    from onboard.daemon.clock import OffsetClock, SimClockFollower, WallClock
     from onboard.daemon.config import ConfigError, load_fleet
     from onboard.daemon.loop import AgentDaemon, agent_config
     from onboard.daemon.peers import DropCounter, PeerLink
@@ -70,6 +78,9 @@ def agent(
     except ConfigError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    if not math.isfinite(clock_offset):
+        typer.echo(f"error: --clock-offset must be finite, got {clock_offset}", err=True)
+        raise typer.Exit(2)
     if not 0 <= agent_id < fleet.n:
         typer.echo(f"error: --id {agent_id}: the fleet has agents 0..{fleet.n - 1}", err=True)
         raise typer.Exit(2)
@@ -115,6 +126,11 @@ def agent(
     else:
         clock = WallClock()
         slowdown = 1.0
+    if clock_offset:
+        logging.getLogger(__name__).warning(
+            "fault injection: clock shifted by %+.3f s", clock_offset
+        )
+        clock = OffsetClock(clock, clock_offset)
     link = open_link(
         backend or c.mavlink.backend,
         LinkConfig(

@@ -27,6 +27,29 @@ class WallClock:
         return time.time()
 
 
+class OffsetClock:
+    """``inner`` shifted by ``offset_s``: fault injection (``bearingflock agent --clock-offset``)
+    to rehearse a vehicle whose clock disagrees with its team's (:mod:`onboard.daemon.peer_clock`).
+    """
+
+    def __init__(self, inner: Clock, offset_s: float) -> None:
+        self.inner = inner
+        self.offset_s = offset_s
+
+    def now(self) -> float | None:
+        t = self.inner.now()
+        return None if t is None else t + self.offset_s
+
+    @property
+    def speedup(self) -> float:
+        return float(getattr(self.inner, "speedup", 1.0))
+
+    def observe(self, t_sim_s: float) -> None:
+        observe = getattr(self.inner, "observe", None)
+        if observe is not None:
+            observe(t_sim_s)
+
+
 MAX_EXTRAPOLATION_S = 0.1
 """Simulation seconds the follower runs ahead of the newest simulation time it has seen."""
 

@@ -39,6 +39,7 @@ from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
 from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
+from onboard.daemon.peer_clock import PeerClockCheck
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph, formation_edges
@@ -159,6 +160,8 @@ class AgentDaemon:
         self._lost_since: dict[int, float] = {}
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
+        self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.peer_timeout_s)
+        self._skewed: frozenset[int] = frozenset()
         self._status_seq = 0
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
@@ -379,6 +382,8 @@ class AgentDaemon:
         """
         own = self._measurements(now_s, tel)
         inbox = self.peers.drain(self._neighbours)
+        for msg in inbox:
+            self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
         last = self._last_core_t
         self._last_core_t = now_s
         out: list[Payload] = []
@@ -401,6 +406,8 @@ class AgentDaemon:
         alarms += [f"peer_lost:{j}" for j in lost]
         if lost and not self._rigid_without(lost):
             alarms.append("rigidity_lost")
+        skewed = self._check_peer_clocks(now_s)
+        alarms += [f"peer_clock:{j}" for j in skewed]
         if tel.stale:
             alarms.append("autopilot_stale")
         if self.bearings.age_s(now_s) > c.limits.stale_s:
@@ -416,7 +423,7 @@ class AgentDaemon:
             alarms.append("estimate_diverging")
         if phase == "flying":
             safe = finite and not (
-                tel.stale or "rigidity_lost" in alarms or "bearings_stale" in alarms
+                tel.stale or skewed or "rigidity_lost" in alarms or "bearings_stale" in alarms
             )
             if safe:
                 v = setpoint.v_body
@@ -433,6 +440,25 @@ class AgentDaemon:
             else:
                 self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
         return alarms
+
+    def _check_peer_clocks(self, now_s: float) -> list[int]:
+        """Neighbours whose clocks disagree with ours (:mod:`onboard.daemon.peer_clock`): their
+        data would corrupt the estimates without a sign, so the vehicle holds. Logged on change."""
+        skewed = self.clock_check.skewed(now_s)
+        now_skewed = frozenset(skewed)
+        for j in sorted(now_skewed - self._skewed):
+            d = skewed[j]
+            where = "behind" if d > 0 else "ahead of"
+            log.warning(
+                "peer %d's clock is %.2f s %s ours (its messages arrive %+.3f s after their "
+                "stamps at best): holding until the vehicles' clocks agree (chrony or PTP; "
+                "docs/flying.md)",
+                j, abs(d), where, d,
+            )  # fmt: skip
+        for j in sorted(self._skewed - now_skewed):
+            log.info("peer %d's clock agrees with ours again", j)
+        self._skewed = now_skewed
+        return sorted(now_skewed)
 
     def _frame_link_time(self, now_s: float) -> float | None:
         """When (link clock) the newest bearing frame used so far was captured."""

@@ -2,8 +2,9 @@
 MAVLink, real Zenoh on loopback. The fleet file puts the altitude floor (``[limits]
 min_alt_m``) above the take-off height: once flying the mission, every vehicle climbs above it
 and reports ``altitude_floor`` meanwhile. Faults: malformed peer payloads and MAVLink garbage
-are counted and dropped; a killed agent is noticed by its peers and its autopilot fails safe; a
-restarted agent rejoins; a land command brings everyone down."""
+are counted and dropped; a killed agent is noticed by its peers and its autopilot fails safe;
+restarted with its clock 1.5 s off, its peers name it (``peer_clock``) and it names them;
+restarted again with a good clock, it rejoins; a land command brings everyone down."""
 
 from __future__ import annotations
 
@@ -42,15 +43,18 @@ def fly_survive_bad_input_and_faults(fleet, wait_for) -> None:
     heights = [-float(tr.p_ned[2]) for tr in ev.truth.values()]
     assert min(heights) < FLOOR_M - 2.0, heights
     floor_alarm_seen: set[int] = set()
+    clock_alarms: list[str] = []  # synchronized clocks (one simulator): must stay empty
 
     def above_floor() -> bool:
         floor_alarm_seen.update(k for k, s in ev.snapshot().items() if "altitude_floor" in s.alarms)
+        clock_alarms.extend(a for s in ev.snapshot().values() for a in s.alarms if "clock" in a)
         return len(ev.truth) == N and all(
             -float(tr.p_ned[2]) > FLOOR_M - 0.3 for tr in ev.truth.values()
         )
 
     wait_for(above_floor, 30.0, f"every vehicle above the {FLOOR_M} m floor", ev)
     assert floor_alarm_seen == set(range(N))
+    assert clock_alarms == []
 
     # bad input on the peer keys and on an agent's MAVLink port
     bad = [
@@ -95,14 +99,32 @@ def fly_survive_bad_input_and_faults(fleet, wait_for) -> None:
     wait_for(vehicle3_left_offboard, 5.0, "vehicle 3's PX4 offboard-loss failsafe")
     assert time.monotonic() - t_kill < 5.0
 
-    # restart it: it rejoins (its peers clear the alarm, it publishes again)
+    # restart it with its clock 1.5 s ahead of the team's: everyone names the disagreement
+    procs.start("agent2-skewed", [*agent_args[2], "--clock-offset", "1.5"])
+
+    def clocks_flagged() -> bool:
+        st = ev.snapshot()
+        return all("peer_clock:2" in st[k].alarms for k in (0, 1)) and {
+            "peer_clock:0",
+            "peer_clock:1",
+        } <= set(st[2].alarms)
+
+    wait_for(clocks_flagged, 15.0, "agents 0 and 1 to flag 2's clock, and 2 to flag theirs", ev)
+    st = ev.snapshot()
+    assert "peer_clock:1" not in st[0].alarms and "peer_clock:0" not in st[1].alarms
+    dict(procs.procs)["agent2-skewed"].kill()
+
+    # restart it with the team's clock: it rejoins (its peers clear the alarms, it publishes)
     procs.start("agent2-restart", agent_args[2])
     wait_for(
-        lambda: all("peer_lost:2" not in ev.snapshot()[k].alarms for k in (0, 1))
+        lambda: all(
+            "peer_lost:2" not in ev.snapshot()[k].alarms
+            and "peer_clock:2" not in ev.snapshot()[k].alarms for k in (0, 1)
+        )
         and ev.snapshot()[2].stamp_s > 0 and ev.snapshot()[2].phase in ("ready", "flying"),
         30.0, "agent 2 to rejoin", ev,
     )  # fmt: skip
 
     ev.command_all("land")
     wait_for(lambda: all(not s.in_air for s in ev.snapshot().values()), 40.0, "everyone landed", ev)
-    assert procs.dead() == ["agent2"]  # only the one we killed
+    assert sorted(procs.dead()) == ["agent2", "agent2-skewed"]  # only the ones we killed
