@@ -171,9 +171,11 @@ def _print_result(result: PlacementResult, plot: Path | None) -> None:
             row.append(f"{np.degrees(result.headings_rad[i]):.1f}")
         sp.add_row(*row)
     console.print(sp)
+    build = result.details.get("build_seconds")
+    built = "" if build is None else f" (+ {build:.1f} s to build the compiled solver)"
     console.print(
         f"objective (worst trace): [bold]{result.objective:.4g}[/] m^2, "
-        f"1-sigma radius {np.sqrt(result.objective):.3g} m, {result.seconds:.2f} s"
+        f"1-sigma radius {np.sqrt(result.objective):.3g} m, {result.seconds:.2f} s{built}"
     )
     if plot is not None:
         console.print(f"figure written to {plot}")
