@@ -30,7 +30,7 @@ import enum
 import math
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 Vec3 = tuple[float, float, float]
@@ -282,6 +282,16 @@ def serial_device(url: str) -> tuple[str, int] | None:
     if not baud_text.isdigit() or int(baud_text) <= 0:
         raise ValueError(f"{url!r}: the baud rate after the last ':' must be a positive integer")
     return device, int(baud_text)
+
+
+def wrong_system_message(url: str, wanted: int, heard: Iterable[int], timeout_s: float) -> str:
+    """The error of a link that heard autopilots, but not the system it must talk to."""
+    ids = ", ".join(str(i) for i in sorted(set(heard)))
+    return (
+        f"no heartbeat of autopilot system {wanted} on {url!r} within {timeout_s} s, only of "
+        f"system {ids}: set the autopilot's MAV_SYS_ID (PX4) or SYSID_THISMAV (ArduPilot) to "
+        f"{wanted}, or the fleet's [mavlink] system_id_base / the agent's --system-id"
+    )
 
 
 class LinkError(RuntimeError):

@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import math
 import threading
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -38,6 +39,7 @@ from onboard.autopilot.base import (
     LinkEvent,
     StreamState,
     serial_device,
+    wrong_system_message,
 )
 from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
@@ -99,6 +101,25 @@ class MavsdkLink(LinkBookkeeping):
         self._offboard: Any = None
         self._system_id: int | None = None
 
+    def _find_autopilot(self, timeout_s: float) -> tuple[Any, set[int]]:
+        """The autopilot of ``config.system_id`` (any, if ``None``) and the other autopilot
+        systems heard meanwhile."""
+        wanted = self.config.system_id
+        if wanted is None:
+            return self._mavsdk.first_autopilot(timeout_s), set()
+        deadline = time.monotonic() + timeout_s
+        others: set[int] = set()
+        while True:
+            for system in self._mavsdk.get_systems():
+                if not system.has_autopilot():
+                    continue
+                if int(system.get_system_id()) == wanted:
+                    return system, others
+                others.add(int(system.get_system_id()))
+            if time.monotonic() >= deadline:
+                return None, others
+            time.sleep(0.05)
+
     # --- identity -------------------------------------------------------------------------------
     @property
     def flavour(self) -> Flavour | None:
@@ -128,9 +149,13 @@ class MavsdkLink(LinkBookkeeping):
         if result != ConnectionResult.SUCCESS:
             self.close()
             raise LinkError(f"cannot open {murl!r}: {result.name}")
-        system = self._mavsdk.first_autopilot(timeout_s)
+        system, others = self._find_autopilot(timeout_s)
         if system is None:
             self.close()
+            if others and self.config.system_id is not None:
+                raise LinkError(
+                    wrong_system_message(murl, self.config.system_id, others, timeout_s)
+                )
             raise LinkError(f"no autopilot heartbeat on {murl!r} within {timeout_s} s")
         self._system = system
         self._system_id = int(system.get_system_id())

@@ -49,6 +49,7 @@ from onboard.autopilot.base import (
     StreamState,
     result_name,
     serial_device,
+    wrong_system_message,
 )
 from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
@@ -90,6 +91,8 @@ class PymavlinkLink(LinkBookkeeping):
         self._t0 = self._clock()
         self._t_heartbeat_sent = -math.inf
         self._threads: list[threading.Thread] = []
+        self._other_systems: set[int] = set()
+        """Autopilots heard that are not ``config.system_id`` (named if it never comes)."""
 
     # --- identity -------------------------------------------------------------------------------
     @property
@@ -130,7 +133,10 @@ class PymavlinkLink(LinkBookkeeping):
         with self._cond:
             heard = self._cond.wait_for(lambda: self._target is not None, timeout_s)
         if not heard:
+            others = set(self._other_systems)
             self.close()
+            if others and self.config.system_id is not None:
+                raise LinkError(wrong_system_message(url, self.config.system_id, others, timeout_s))
             raise LinkError(f"no autopilot heartbeat on {url!r} within {timeout_s} s")
         self._start_thread(self._send_loop, "autopilot-tx")
         if request_streams is None:
@@ -213,6 +219,7 @@ class PymavlinkLink(LinkBookkeeping):
         if msg.get_type() != "HEARTBEAT" or not is_autopilot_heartbeat(msg.type, msg.autopilot):
             return False
         if self.config.system_id is not None and src[0] != self.config.system_id:
+            self._other_systems.add(src[0])
             return False
         flavour = flavour_from_autopilot(int(msg.autopilot))
         if flavour is None:

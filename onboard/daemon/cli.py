@@ -46,6 +46,15 @@ def agent(
         str | None,
         typer.Option(help="Local OpenCV capture (index, file or URL) instead of Zenoh images."),
     ] = None,
+    system_id: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            max=255,
+            help="MAVLink system id of this vehicle's autopilot; default "
+            "[mavlink] system_id_base + id. Heartbeats of other systems are ignored.",
+        ),
+    ] = None,
     clock_offset: Annotated[
         float,
         typer.Option(
@@ -140,6 +149,7 @@ def agent(
             max_yaw_rate_radps=c.limits.max_yaw_rate_rad_s,
             heartbeat_timeout_s=LinkConfig.heartbeat_timeout_s * slowdown,
             stream_rates_hz=_stream_rates(bearings, c.camera.attitude_rate_hz),
+            system_id=system_id or fleet.system_id(agent_id),
         ),
     )
     on_status = None

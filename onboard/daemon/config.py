@@ -33,6 +33,8 @@
     url = "udpin:127.0.0.1:{port}"    # {port} = port_base + id, {id} = agent id; on a
                                       # companion computer's UART: "serial:/dev/ttyAMA0:921600"
     port_base = 14540
+    system_id_base = 1                # agent i talks only to autopilot system id base + i
+                                      # (MAV_SYS_ID / SYSID_THISMAV); others on the link are ignored
 
     [zenoh]
     mode = "peer"                     # or "client" with a router in connect
@@ -116,6 +118,7 @@ class MavlinkSettings(msgspec.Struct, forbid_unknown_fields=True):
     backend: Literal["pymavlink", "mavsdk"] = "pymavlink"
     url: str = "udpin:127.0.0.1:{port}"
     port_base: int = 14540
+    system_id_base: int = 1
 
 
 class ZenohSection(msgspec.Struct, forbid_unknown_fields=True):
@@ -180,6 +183,10 @@ class Fleet(msgspec.Struct, frozen=True):
     def mavlink_url(self, agent_id: int) -> str:
         m = self.config.mavlink
         return m.url.format(port=m.port_base + agent_id, id=agent_id)
+
+    def system_id(self, agent_id: int) -> int:
+        """The MAVLink system id of agent ``agent_id``'s autopilot."""
+        return self.config.mavlink.system_id_base + agent_id
 
     def zenoh_port(self, agent_id: int) -> int:
         return self.config.zenoh.port_base + 1 + agent_id
@@ -280,6 +287,12 @@ def load_fleet(path: str | Path) -> Fleet:
         formation = load_formation(path.parent / config.formation)
     except FormationError as exc:
         raise ConfigError(f"{path}: formation: {exc}") from None
+    base = config.mavlink.system_id_base
+    if not (1 <= base and base + formation.n - 1 <= 255):
+        raise ConfigError(
+            f"{path}: mavlink.system_id_base: system ids {base}..{base + formation.n - 1} must "
+            "be in 1..255"
+        )
     if sorted(formation.ids.tolist()) != list(range(formation.n)):
         raise ConfigError(
             f"{path}: formation: agent ids must be 0..{formation.n - 1} (vehicle indices), "

@@ -19,7 +19,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as px4_dialect
 
 from messages import mavlink as mv
-from onboard.autopilot.base import LinkConfig, StreamState
+from onboard.autopilot.base import LinkConfig, LinkError, StreamState
 from onboard.autopilot.pymavlink_link import PymavlinkLink
 from sim.server import SimConfig, SimServer, free_port_base
 from sim.world import grid_layout
@@ -235,6 +235,26 @@ def test_ardupilot_strict_boot_guided_velocity_and_guid_timeout(make_sim):
         assert link.telemetry().counters.bad_data == 0
     finally:
         link.close()
+
+
+@pytest.mark.parametrize("backend", ["pymavlink", "mavsdk"])
+def test_a_link_talks_only_to_its_own_system_id(make_sim, backend):
+    """On a shared network a daemon must not adopt another vehicle's autopilot: with system 1
+    on the link, a link for system 2 fails and names what it heard and what to set."""
+    from onboard.autopilot.mavsdk_link import MavsdkLink
+
+    cls = PymavlinkLink if backend == "pymavlink" else MavsdkLink
+    _, base = make_sim("px4")  # one vehicle, system 1
+    url = f"udpin:127.0.0.1:{base}"
+    wrong = cls(LinkConfig(system_id=2))
+    with pytest.raises(LinkError, match=r"system 2 .* only of system 1: set .*MAV_SYS_ID"):
+        wrong.connect(url, timeout_s=1.5)
+    right = cls(LinkConfig(system_id=1))
+    try:
+        right.connect(url, timeout_s=5.0)
+        assert right.target_system == 1
+    finally:
+        right.close()
 
 
 def test_mavsdk_backend_flies_px4(make_sim):

@@ -35,6 +35,7 @@ def test_defaults_and_urls(tmp_path):
     fleet = load_fleet(write(tmp_path, 'formation = "formation.toml"\n'))
     assert fleet.n == 3
     assert fleet.mavlink_url(2) == "udpin:127.0.0.1:14542"
+    assert fleet.system_id(2) == 3  # MAVLink system id = agent id + 1
     assert fleet.zenoh_port(0) == 7448 and fleet.sim_zenoh_port() == 7447
     cfg = agent_config(fleet, 1)
     assert cfg.agent_id == 1 and cfg.n_agents == 3
@@ -69,6 +70,8 @@ def test_defaults_and_urls(tmp_path):
             "limits.min_alt_m must be < limits.max_alt_m",
         ),
         ('formation = "formation.toml"\n[limits]\nmin_alt_m = nan\n', "limits.min_alt_m"),
+        ('formation = "formation.toml"\n[mavlink]\nsystem_id_base = 0\n', "system_id_base"),
+        ('formation = "formation.toml"\n[mavlink]\nsystem_id_base = 254\n', "254..256"),
     ],
 )
 def test_bad_fleet_files(tmp_path, fleet, needle):
