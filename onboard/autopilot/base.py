@@ -173,6 +173,10 @@ class Telemetry:
     """Heading-frame velocity ``R_z(yaw)^T v_ned`` (module docstring)."""
     altitude_m: float
     """Height above the autopilot's local origin (``-z`` of LOCAL_POSITION_NED)."""
+    north_m: float
+    east_m: float
+    """Horizontal position from the autopilot's local origin (``x``, ``y`` of
+    LOCAL_POSITION_NED; the origin is where its estimator started)."""
     mode: str
     armed: bool
     landed_state: int

@@ -240,11 +240,12 @@ class MavsdkLink(LinkBookkeeping):
 
     def _on_position_velocity(self, pv: Any) -> None:
         v = (pv.velocity.north_m_s, pv.velocity.east_m_s, pv.velocity.down_m_s)
-        if not all(math.isfinite(x) for x in (*v, pv.position.down_m)):
+        pos = (pv.position.north_m, pv.position.east_m, pv.position.down_m)
+        if not all(math.isfinite(x) for x in (*v, *pos)):
             raise ValueError("non-finite position/velocity")
         st = self._state
         st.v_ned = (float(v[0]), float(v[1]), float(v[2]))
-        st.altitude_m = -float(pv.position.down_m)
+        st.north_m, st.east_m, st.altitude_m = float(pos[0]), float(pos[1]), -float(pos[2])
         st.t_velocity_s = self._clock()
 
     def _on_landed(self, landed: Any) -> None:

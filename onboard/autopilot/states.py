@@ -232,6 +232,8 @@ class TelemetryState:
     yaw_rate_radps: float = 0.0
     v_ned: Vec3 = (0.0, 0.0, 0.0)
     altitude_m: float = 0.0
+    north_m: float = 0.0
+    east_m: float = 0.0
     t_boot_s: float | None = None
     t_boot_attitude_s: float | None = None
     t_boot_velocity_s: float | None = None
@@ -287,6 +289,7 @@ class TelemetryState:
         self.t_velocity_s = now_s
         self.v_ned = (float(msg.vx), float(msg.vy), float(msg.vz))
         self.altitude_m = -float(msg.z)
+        self.north_m, self.east_m = float(msg.x), float(msg.y)
         self.t_boot_s = self.t_boot_velocity_s = msg.time_boot_ms / 1000.0
 
     def _on_extended_sys_state(self, msg: Any, _now_s: float) -> None:
@@ -355,6 +358,8 @@ def snapshot(
         v_ned=st.v_ned,
         v_body=st.v_body(),
         altitude_m=st.altitude_m,
+        north_m=st.north_m,
+        east_m=st.east_m,
         mode=st.mode,
         armed=st.armed,
         landed_state=st.landed_state,

@@ -27,6 +27,8 @@
     stale_s = 0.5                     # inputs older than this -> hold
     min_alt_m = 2.0                   # altitude envelope while flying the mission (m above the
     max_alt_m = 50.0                  # autopilot's local origin; onboard/control/envelope.py)
+    max_radius_m = 100.0              # horizontal fence: a circle about the local origin (the
+                                      # take-off spot); a few metres in an indoor net
 
     [mavlink]
     backend = "pymavlink"             # or "mavsdk"
@@ -112,6 +114,7 @@ class Limits(msgspec.Struct, forbid_unknown_fields=True):
     stale_s: float = 0.5
     min_alt_m: float = 2.0
     max_alt_m: float = 50.0
+    max_radius_m: float = 100.0
 
 
 class MavlinkSettings(msgspec.Struct, forbid_unknown_fields=True):

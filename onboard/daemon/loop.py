@@ -33,7 +33,7 @@ from messages.codec import Payload
 from messages.command import FleetCommand
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
-from onboard.control.envelope import bound_down_velocity
+from onboard.control.envelope import bound_down_velocity, bound_horizontal_velocity
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
@@ -434,12 +434,27 @@ class AgentDaemon:
                     alarms.append("altitude_floor")
                 elif v_down > v[2]:
                     alarms.append("altitude_ceiling")
+                v_x, v_y = self._fence(v[0], v[1], tel)
+                if (v_x, v_y) != (v[0], v[1]):
+                    alarms.append("fence")
                 self.link.set_setpoint(
-                    (v[0], v[1], v_down), setpoint.yaw_rate_rad_s, self._frame_link_time(now_s)
+                    (v_x, v_y, v_down), setpoint.yaw_rate_rad_s, self._frame_link_time(now_s)
                 )
             else:
                 self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
         return alarms
+
+    def _fence(self, v_x: float, v_y: float, tel: Telemetry) -> tuple[float, float]:
+        """The heading-frame horizontal command bounded by the fence about the autopilot's local
+        origin (:func:`onboard.control.envelope.bound_horizontal_velocity`, in NED)."""
+        c, s = math.cos(tel.yaw_rad), math.sin(tel.yaw_rad)
+        v_n, v_e = c * v_x - s * v_y, s * v_x + c * v_y
+        b_n, b_e = bound_horizontal_velocity(
+            v_n, v_e, tel.north_m, tel.east_m, self.fleet.config.limits.max_radius_m
+        )
+        if (b_n, b_e) == (v_n, v_e):
+            return v_x, v_y  # untouched (no round trip through the rotation)
+        return c * b_n + s * b_e, -s * b_n + c * b_e
 
     def _check_peer_clocks(self, now_s: float) -> list[int]:
         """Neighbours whose clocks disagree with ours (:mod:`onboard.daemon.peer_clock`): their

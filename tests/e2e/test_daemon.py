@@ -1,14 +1,17 @@
 """The onboard daemon end to end: the simulator and three daemons as processes, real UDP
 MAVLink, real Zenoh on loopback. The fleet file puts the altitude floor (``[limits]
 min_alt_m``) above the take-off height: once flying the mission, every vehicle climbs above it
-and reports ``altitude_floor`` meanwhile. Faults: malformed peer payloads and MAVLink garbage
+and reports ``altitude_floor`` meanwhile; and a horizontal fence (``max_radius_m``) that the
+growing formation meets: no vehicle gets out of it. Faults: malformed peer payloads and MAVLink garbage
 are counted and dropped; a killed agent is noticed by its peers and its autopilot fails safe;
 restarted with its clock 1.5 s off, its peers name it (``peer_clock``) and it names them;
 restarted again with a good clock, it rejoins; a land command brings everyone down."""
 
 from __future__ import annotations
 
+import math
 import socket
+import threading
 import time
 
 import msgspec
@@ -19,10 +22,13 @@ pytestmark = pytest.mark.e2e
 N = 3  # vehicles in the fleet (conftest.py)
 FLOOR_M = 9.0
 """Altitude floor of the fleet file; the daemons take off to 5 m."""
+FENCE_M = 1.5
+"""Horizontal fence of the fleet file, about each autopilot's local origin (its start)."""
 
 
 def test_daemons_fly_survive_bad_input_and_faults(tmp_path, fleet_with, wait_for):
-    with fleet_with(tmp_path, f"[limits]\nmin_alt_m = {FLOOR_M}\n") as fleet:
+    limits = f"[limits]\nmin_alt_m = {FLOOR_M}\nmax_radius_m = {FENCE_M}\n"
+    with fleet_with(tmp_path, limits) as fleet:
         fly_survive_bad_input_and_faults(fleet, wait_for)
 
 
@@ -37,6 +43,7 @@ def fly_survive_bad_input_and_faults(fleet, wait_for) -> None:
         )
 
     wait_for(all_flying, 60.0, "every daemon flying in OFFBOARD", ev)
+    fence = FenceWatch(ev)
 
     # the altitude envelope lifts everyone from the 5 m take-off above the floor (the daemons
     # start flying one after the other: the last one has only just begun to climb)
@@ -125,6 +132,38 @@ def fly_survive_bad_input_and_faults(fleet, wait_for) -> None:
         30.0, "agent 2 to rejoin", ev,
     )  # fmt: skip
 
+    fence.stop()
+    print(f"fence: largest distance from the start {fence.largest_m:.2f} m, "
+          f"alarms from {sorted(fence.alarmed)}")  # fmt: skip
+    assert fence.largest_m < FENCE_M + 0.3
+    assert fence.alarmed  # the formation met the fence: the bound acted
     ev.command_all("land")
     wait_for(lambda: all(not s.in_air for s in ev.snapshot().values()), 40.0, "everyone landed", ev)
     assert sorted(procs.dead()) == ["agent2", "agent2-skewed"]  # only the ones we killed
+
+
+class FenceWatch:
+    """Samples, while the test runs, how far each vehicle is from its start (its autopilot's
+    local origin, the simulator's truth) and who reports the ``fence`` alarm."""
+
+    def __init__(self, ev) -> None:
+        from groundstation.demo import plan_formation
+
+        self.start = plan_formation(N, seed=1).p_start_ned  # the layout of conftest.py
+        self.ev = ev
+        self.largest_m = 0.0
+        self.alarmed: set[int] = set()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.05):
+            for k, tr in list(self.ev.truth.items()):
+                d = tr.p_ned[:2] - self.start[k][:2]
+                self.largest_m = max(self.largest_m, math.hypot(float(d[0]), float(d[1])))
+            self.alarmed |= {k for k, st in self.ev.snapshot().items() if "fence" in st.alarms}
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
