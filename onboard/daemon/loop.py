@@ -466,8 +466,8 @@ class AgentDaemon:
             where = "behind" if d > 0 else "ahead of"
             log.warning(
                 "peer %d's clock is %.2f s %s ours (its messages arrive %+.3f s after their "
-                "stamps at best): holding until the vehicles' clocks agree (chrony or PTP; "
-                "docs/flying.md)",
+                "stamps, 20th percentile over 2 s): holding until the vehicles' clocks agree "
+                "(chrony or PTP; docs/flying.md)",
                 j, abs(d), where, d,
             )  # fmt: skip
         for j in sorted(self._skewed - now_skewed):
