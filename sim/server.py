@@ -304,12 +304,28 @@ def ports_free(ports: list[tuple[int, int]], host: str = "127.0.0.1") -> bool:
     return True
 
 
+def ephemeral_port_start(path: str = "/proc/sys/net/ipv4/ip_local_port_range") -> int:
+    """First port the kernel hands out to outgoing connections (Linux; 32768 elsewhere)."""
+    try:
+        with open(path) as f:
+            return int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
 def free_port_base(n: int, span: int = 50, seed: int | None = None, tries: int = 200) -> int:
     """A port base ``b`` such that ``b .. b + span + n`` are free for UDP and TCP (tests use it
-    so parallel simulators do not collide). Raises ``RuntimeError`` if none is found."""
+    so parallel simulators do not collide). Raises ``RuntimeError`` if none is found.
+
+    The range lies below the kernel's ephemeral ports: there, any outgoing connection (the
+    daemons' Zenoh sessions open dozens) may take a port between this check and the bind, and
+    a demo daemon died of exactly that ("Address already in use")."""
     rng = np.random.default_rng(seed)
+    top = min(60000, ephemeral_port_start()) - span - n
+    if top <= 20000:
+        top = 60000 - span - n  # no room below the ephemeral range: take the old range
     for _ in range(tries):
-        base = int(rng.integers(20000, 60000 - span - n))
+        base = int(rng.integers(20000, top))
         ports = [
             (k, base + d) for d in range(span + n) for k in (socket.SOCK_DGRAM, socket.SOCK_STREAM)
         ]
