@@ -51,8 +51,8 @@ def agent(
         typer.Option(
             min=1,
             max=255,
-            help="MAVLink system id of this vehicle's autopilot; default "
-            "[mavlink] system_id_base + id. Heartbeats of other systems are ignored.",
+            help="MAVLink system id of this vehicle's autopilot; default: the fleet's "
+            "mavlink.system_id_base + id. Heartbeats of other systems are ignored.",
         ),
     ] = None,
     clock_offset: Annotated[
