@@ -168,8 +168,8 @@ def demo(
     speedup: Annotated[
         float | None,
         typer.Option(
-            help="Simulation speed (sim s per wall s) [what this machine's cores run comfortably, "
-            "at most 1; at most 0.5 with camera]."
+            help="Simulation speed (sim s per wall s); default: what this machine's cores run "
+            "comfortably, at most 1 (0.5 with camera)."
         ),
     ] = None,
     cameras: Annotated[
@@ -177,7 +177,9 @@ def demo(
     ] = 1,
     camera_fov: Annotated[
         float | None,
-        typer.Option(help="Camera bearings: horizontal fov (deg) [110 forward; 360/N + 10 ring]."),
+        typer.Option(
+            help="Camera bearings: horizontal fov (deg; default: 110 forward, 360/N + 10 ring)."
+        ),
     ] = None,
     camera_size: Annotated[
         str, typer.Option(help="Camera bearings: image size WIDTHxHEIGHT.")

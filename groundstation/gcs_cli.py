@@ -437,7 +437,7 @@ def plot(
     src: Annotated[Path, typer.Argument(help="MCAP file written by gcs record.")],
     out: Annotated[Path, typer.Option("--out", help="Directory for the PNG files.")],
     fleet: Annotated[
-        str | None, typer.Option("--fleet", help="Fleet to plot [the recording's].")
+        str | None, typer.Option("--fleet", help="Fleet to plot (default: the recording's).")
     ] = None,
 ) -> None:
     """PNGs of scale error, SfM convergence, rigidity, bearing errors and trajectories."""

@@ -52,13 +52,14 @@ def sim(
         int, typer.Option(help="UDP: every vehicle also sends here (0: off).")
     ] = 14550,
     bind_base: Annotated[
-        int | None, typer.Option(help="UDP: vehicle i binds port bind-base + i [port-base + 40].")
+        int | None,
+        typer.Option(help="UDP: vehicle i binds port bind-base + i (default: port-base + 40)."),
     ] = None,
     tcp_base: Annotated[
         int, typer.Option(help="TCP: vehicle i listens on tcp-base + 10 i.")
     ] = 5760,
     transport: Annotated[
-        str | None, typer.Option(help="udp or tcp [udp for px4, tcp for ardupilot].")
+        str | None, typer.Option(help="udp or tcp (default: udp for px4, tcp for ardupilot).")
     ] = None,
     camera_fov: Annotated[float, typer.Option(help="Camera field of view (deg, cone).")] = 90.0,
     camera_range: Annotated[float, typer.Option(help="Camera range (m).")] = 25.0,

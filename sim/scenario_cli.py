@@ -21,7 +21,7 @@ def scenario(
     name: Annotated[str, typer.Argument(help=f"One of: {', '.join(ALL_SCENARIOS)}")],
     seed: Annotated[int, typer.Option(min=0, help="Seed of every random choice")] = 0,
     duration: Annotated[
-        float | None, typer.Option(help="Simulated seconds [default: 20, rigidity-*: 60]")
+        float | None, typer.Option(help="Simulated seconds (default: 20, rigidity-*: 60)")
     ] = None,
     plot: Annotated[Path | None, typer.Option(help="Directory for PNG figures")] = None,
     json: Annotated[bool, typer.Option("--json", help="Print one JSON object")] = False,
