@@ -27,9 +27,10 @@ class Method(str, enum.Enum):
 def _fail(message: str, code: int) -> typer.Exit:
     """Print ``message`` as one line on stderr and return the exit to raise."""
     from rich.console import Console
+    from rich.markup import escape
 
     Console(stderr=True, highlight=False, soft_wrap=True).print(
-        f"[bold red]error:[/] {message}", markup=True
+        f"[bold red]error:[/] {escape(message)}", markup=True
     )
     return typer.Exit(code)
 

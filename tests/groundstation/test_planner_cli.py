@@ -151,6 +151,15 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path: Path, text: str, args: li
     assert err.startswith("error:") and err.count("\n") == 1
 
 
+def test_cli_error_keeps_brackets_in_paths(tmp_path: Path) -> None:
+    """Errors are printed with rich: a path like ``[run1]/x.toml`` must not lose its tag-like
+    part."""
+    missing = tmp_path / "[run1]" / "nope.toml"
+    result = CliRunner().invoke(_app(), ["plan", str(missing), "-m", "2"])
+    assert result.exit_code == 2
+    assert "[run1]" in result.stderr
+
+
 def test_cli_missing_file_exits_2(tmp_path: Path) -> None:
     result = CliRunner().invoke(_app(), ["plan", str(tmp_path / "nope.toml"), "-m", "2"])
     assert result.exit_code == 2
