@@ -37,7 +37,9 @@ def check(
     try:
         report = analyze(load_formation(formation))
     except FormationError as exc:
-        Console(stderr=True).print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+        Console(stderr=True).print(
+            f"[red]error:[/red] {escape(str(exc))}", highlight=False, soft_wrap=True
+        )
         raise typer.Exit(EXIT_INVALID) from None
     if json:
         sys.stdout.write(msgspec.json.encode(report).decode() + "\n")

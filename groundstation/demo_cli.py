@@ -18,6 +18,7 @@ from typing import Annotated, get_args
 import typer
 from rich.console import Console
 from rich.live import Live
+from rich.markup import escape
 from rich.table import Table
 
 
@@ -293,7 +294,7 @@ def demo(
         console.print("[yellow]interrupted: every process was stopped[/yellow]")
         raise typer.Exit(130) from None
     except RuntimeError as exc:
-        console.print(f"[red]error:[/red] {exc}")
+        console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(1) from None
     summary["bearings"] = bearings
     summary["speedup"] = speed

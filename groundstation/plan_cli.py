@@ -152,6 +152,7 @@ def result_to_json(result: PlacementResult) -> dict[str, object]:
 def _print_result(result: PlacementResult, plot: Path | None) -> None:
     import numpy as np
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     console = Console()
@@ -179,4 +180,4 @@ def _print_result(result: PlacementResult, plot: Path | None) -> None:
         f"1-sigma radius {np.sqrt(result.objective):.3g} m, {result.seconds:.2f} s{built}"
     )
     if plot is not None:
-        console.print(f"figure written to {plot}")
+        console.print(f"figure written to {escape(str(plot))}")

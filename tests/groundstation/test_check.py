@@ -129,6 +129,17 @@ def test_invalid_file_exits_2_with_one_line(tmp_path, body, needle):
     assert "bad.toml" in result.output
 
 
+def test_error_keeps_tag_like_brackets_in_paths(tmp_path):
+    """rich prints the error: ``[run1]`` in a path is text, not a markup tag."""
+    folder = tmp_path / "[run1]"
+    folder.mkdir()
+    path = folder / "bad.toml"
+    path.write_text("[[agent]]\nid = 0\n")
+    result = run(str(path))
+    assert result.exit_code == 2
+    assert "[run1]" in result.output
+
+
 def test_console_script_runs_as_a_process():
     out = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "check", str(EXAMPLES / "chain_nonrigid.toml")],
