@@ -229,6 +229,8 @@ class Evaluator:
         self.status: dict[int, VehicleStatus] = {}
         self.truth: dict[int, Truth] = {}
         self.bad_samples = 0
+        self.alarms_seen: dict[str, set[int]] = {}
+        """Every alarm any daemon reported during the run, with the vehicles that did."""
         self.series = Series()
         self._subs = [
             self.session.declare_subscriber(f"bf/{fleet}/*/status", self._on_status),
@@ -243,6 +245,8 @@ class Evaluator:
             return
         with self._lock:
             self.status[msg.sender] = msg
+            for alarm in msg.alarms:
+                self.alarms_seen.setdefault(alarm, set()).add(msg.sender)
 
     def _on_truth(self, sample: Any) -> None:
         try:
@@ -317,7 +321,9 @@ class Evaluator:
 
 
 def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
-    """The demo's summary: time to metric scale, final errors, rigidity, dropped messages."""
+    """The demo's summary: time to metric scale, final errors, rigidity, dropped messages, and
+    every alarm a daemon raised (``{alarm: [vehicles]}``; e.g. ``altitude_floor`` while a vehicle
+    climbs to the envelope after take-off)."""
     s = ev.series
     t = np.array(s.t_s)
     err = np.array(s.scale_error) if s.scale_error else np.zeros((0, len(ev.pairs)))
@@ -365,6 +371,7 @@ def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
         "bad_samples": ev.bad_samples,
         "mission_start_s": start,
         "reciprocal_pairs": ev.pairs.tolist(),
+        "alarms_seen": {a: sorted(ids) for a, ids in sorted(ev.alarms_seen.items())},
     }
 
 
