@@ -38,6 +38,12 @@ def plot_demo(out: Path) -> list[Path]:
     axes[2].set_ylabel("rigidity eigenvalue")
     axes[2].legend(loc="lower right", fontsize=8)
     axes[2].set_xlabel("simulation time (s)")
+    flying = d["flying"].astype(bool)
+    if flying.any():  # the mission starts when every vehicle flies it (the summary's start)
+        for ax in axes:
+            ax.axvline(t[np.argmax(flying)], color="0.5", lw=0.8, ls=":")
+        axes[0].text(t[np.argmax(flying)], 0.98, " mission start", transform=axes[0].get_xaxis_transform(),
+                     va="top", fontsize=8, color="0.4")  # fmt: skip
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
@@ -47,10 +53,12 @@ def plot_demo(out: Path) -> list[Path]:
 
     fig, ax = plt.subplots(figsize=(6, 6))
     p = d["p_ned"]
-    for k in range(p.shape[1]):
-        ax.plot(p[:, k, 1], p[:, k, 0], lw=1)
-        ax.plot(p[-1, k, 1], p[-1, k, 0], "o")
+    for k in range(p.shape[1]):  # one colour per vehicle: its path and where it ended
+        color = f"C{k % 10}"
+        ax.plot(p[:, k, 1], p[:, k, 0], lw=1, color=color, label=f"vehicle {k}")
+        ax.plot(p[-1, k, 1], p[-1, k, 0], "o", color=color)
         ax.plot(d["p_desired_ned"][k, 1], d["p_desired_ned"][k, 0], "kx")
+    ax.legend(fontsize="small", loc="best")
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.set_aspect("equal")
