@@ -150,14 +150,25 @@ def run_scenario(
     seed: int = 0,
     duration_s: float = 20.0,
     progress=None,
+    engine: str = "cores",
     **runner_options: object,
 ) -> Recording:
-    """Run scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`."""
+    """Run scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`.
+
+    ``engine``: ``"cores"`` steps one :class:`onboard.agent.AgentCore` per vehicle (the
+    reference); ``"compiled"`` runs :mod:`sim.compiled_runner` (the same team, compiled)."""
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
     configs = agent_configs(name, seed)
     rc = RunnerConfig(duration_s=duration_s, seed=seed, **runner_options)  # type: ignore[arg-type]
-    rec = run(configs, P0_NED, YAW0_RAD, rc, progress)
+    if engine == "compiled":
+        from sim.compiled_runner import run_compiled
+
+        rec = run_compiled(configs, P0_NED, YAW0_RAD, rc, progress)
+    elif engine == "cores":
+        rec = run(configs, P0_NED, YAW0_RAD, rc, progress)
+    else:
+        raise ValueError(f"unknown engine {engine!r}; choose 'cores' or 'compiled'")
     if SCENARIOS[name].formation:
         des = {(i, j): b for i, j, b in desired_bearings()}
         rec.desired_beta_body = np.array([des[(int(i), int(j))] for i, j in rec.edges])

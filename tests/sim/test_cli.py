@@ -47,6 +47,8 @@ def test_negative_seed_is_a_usage_error():
         (["scale-active", "--bearing-noise-deg", "nan"], "bearing noise"),
         (["scale-active", "--loss", "1"], "loss"),
         (["no-such-scenario"], "unknown scenario"),
+        (["scale-active", "--engine", "gpu"], "unknown engine"),
+        (["rigidity-tracking", "--engine", "compiled"], "scale-* scenarios only"),
     ],
 )
 def test_scenario_bad_options_exit_2(args: list[str], message: str) -> None:

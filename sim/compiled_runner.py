@@ -1,0 +1,249 @@
+"""The headless runner's compiled engine: paper 000's team at hundreds of times real time.
+
+:func:`run_compiled` takes what :func:`sim.runner.run` takes and returns the same
+:class:`sim.runner.Recording`, from :func:`sim.team_kernel.simulate` instead of N Python
+:class:`onboard.agent.AgentCore` objects. Use it for studies (many seeds, long runs); the cores
+remain the reference, and what the daemons fly. The two engines agree on the same seed (tests
+compare trajectories, convergence times and estimates), with these differences:
+
+* message loss draws its own random numbers (same probability, other realization);
+* a lost peer odometry sample is held, not interpolated, by the SfM observers;
+* supported: modes ``active``, ``random``, ``formation``, ``formation-active``, bearing and
+  odometry noise, loss, latency and the autopilot lags. Not: camera latency, field of view,
+  ranges, targets, the rigidity layer (:class:`ValueError` names the option).
+
+The first call compiles the kernel (about a minute on a small machine); numba caches it next
+to the sources (``__pycache__``), so later processes load it in about a second.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from onboard.agent import AgentConfig
+from onboard.control.random_motion import _BLOCK
+from onboard.estimation.localization import MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S
+from onboard.graph import normalize_edges, reciprocal_pairs
+from sim import team_kernel
+from sim.runner import Recording, RunnerConfig
+
+
+class Gains(NamedTuple):
+    """The :class:`AgentConfig` values the kernel uses (one set for the whole team)."""
+
+    alpha: float
+    h_other: float
+    h_floor: float
+    chi_min: float
+    k_loc_b: float
+    k_loc_d: float
+    loc_max_m_s: float
+    loc_max_rad_s: float
+    cons_gamma: float
+    cons_kp: float
+    cons_ki: float
+    k_wl_coupling: float
+    w_l_max: float
+    p_norm: float
+    k_nu: float
+    nu_star: float
+    k_lambda: float
+    k_w: float
+    gamma: float
+    k_lambda0: float
+    e_low: float
+    e_high: float
+    e_folds_min: float
+    k_formation: float
+    k_yaw: float
+    v_max: float
+    w_max: float
+    timeout: float
+    random_tau_s: float
+
+    @classmethod
+    def of(cls, c: AgentConfig) -> Gains:
+        return cls(
+            c.alpha, c.h_other, c.h_floor, c.chi_min_inv_m, c.k_loc_bearing, c.k_loc_distance,
+            MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S, c.consensus_gamma, c.consensus_k_p,
+            c.consensus_k_i, c.k_w_l_coupling, c.w_l_max_rad_s, c.p_norm, c.k_nu, c.nu_star,
+            c.k_lambda, c.k_w, c.gamma, c.k_lambda0, c.e_low, c.e_high, c.converged_e_folds,
+            c.k_formation, c.k_yaw, c.v_max_m_s, c.yaw_rate_max_rad_s, c.peer_timeout_s,
+            c.random_tau_s,
+        )  # fmt: skip
+
+
+def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
+    first = configs[0]
+    for i, c in enumerate(configs):
+        if c.agent_id != i:
+            raise ValueError(f"configs[{i}] has agent_id {c.agent_id}: give them in id order")
+        if c.mode not in team_kernel.MODE_CODES:
+            raise ValueError(f"the compiled engine has no mode {c.mode!r}; use engine 'cores'")
+        if c.rigidity_maintenance:
+            raise ValueError("the compiled engine has no rigidity layer; use engine 'cores'")
+        if c.__struct_fields__ and any(
+            getattr(c, f) != getattr(first, f)
+            for f in c.__struct_fields__
+            if f not in ("agent_id",)
+        ):
+            raise ValueError("the compiled engine needs one configuration for the whole team")
+    unsupported = {
+        "camera_latency_s": runner.camera_latency_s != 0.0,
+        "fov_deg": runner.fov_deg is not None,
+        "range_pairs": bool(runner.range_pairs),
+        "target_path": runner.target_path is not None,
+    }
+    bad = [k for k, v in unsupported.items() if v]
+    if bad:
+        raise ValueError(f"the compiled engine does not support {', '.join(bad)}")
+
+
+def _random_motion_noise(cfg: AgentConfig, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Initial directions and the noise rows :class:`RandomMotion` would draw, in its order."""
+    n = cfg.n_agents
+    z0 = np.zeros((n, 3))
+    noise = np.zeros((n, max(n_steps, 1), 3))
+    for me in range(n):
+        rng = np.random.default_rng(cfg.seed * 1000 + me)
+        z0[me] = rng.standard_normal(3)
+        rows = [rng.standard_normal((_BLOCK, 3))[::-1] for _ in range(-(-n_steps // _BLOCK))]
+        if rows:
+            noise[me] = np.concatenate(rows)[:n_steps]
+    return z0, noise
+
+
+def run_compiled(
+    configs: Sequence[AgentConfig],
+    p0_ned: ArrayLike,
+    yaw0_rad: ArrayLike,
+    runner: RunnerConfig | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> Recording:
+    """:func:`sim.runner.run` with the compiled engine (see the module docstring)."""
+    runner = runner or RunnerConfig()
+    _check(configs, runner)
+    cfg = configs[0]
+    n = len(configs)
+    p = np.array(p0_ned, dtype=float).reshape(n, 3)
+    yaw = np.array(yaw0_rad, dtype=float).reshape(n)
+    edges = normalize_edges(cfg.edges)
+    pairs = reciprocal_pairs(edges)
+    adj = np.zeros((n, n), dtype=bool)
+    adj[edges[:, 0], edges[:, 1]] = True
+
+    dt = runner.dt_s
+    n_steps = round(runner.duration_s / dt)
+    frame_every = max(1, round(1.0 / (runner.camera_rate_hz * dt)))
+    delay = 1 + round(runner.latency_s / dt)
+    if delay >= team_kernel.PAIR_HISTORY * frame_every:
+        raise ValueError(f"latency {runner.latency_s} s is longer than the frames kept")
+    # the runner's random streams, drawn in its order: offsets, then per step frame, odometry
+    rng = np.random.default_rng(runner.seed)
+    offsets = rng.uniform(-runner.yaw_offset_max_rad, runner.yaw_offset_max_rad, n)
+    noisy_v = runner.velocity_noise_m_s > 0.0 or runner.yaw_rate_noise_rad_s > 0.0
+    n_frames = n_steps // frame_every + 1
+    bearing_noise = np.zeros((n_frames if runner.bearing_noise_rad > 0 else 1, len(edges), 3))
+    vel_noise = np.zeros((n_steps + 1 if noisy_v else 1, n, 4))
+    if runner.bearing_noise_rad > 0.0 or noisy_v:
+        for k in range(n_steps + 1):
+            if k % frame_every == 0 and runner.bearing_noise_rad > 0.0:
+                bearing_noise[k // frame_every] = rng.standard_normal((len(edges), 3))
+            if noisy_v:
+                vel_noise[k] = rng.standard_normal((n, 4))
+
+    p_hat = np.array(cfg.p_hat0_ned or [(0.0, 0.0, 0.0)] * n, dtype=float)
+    yaw_hat = np.array(cfg.yaw_hat0_rad or [0.0] * n, dtype=float)
+    d0 = np.linalg.norm(p_hat[pairs[:, 1]] - p_hat[pairs[:, 0]], axis=1)
+    chi = 1.0 / np.maximum(d0 if cfg.p_hat0_ned else np.ones(len(pairs)), 1e-3)
+    speed = math.sqrt(2.0 * cfg.nu_star)
+    u_cmd = np.zeros((n, 3))
+    if cfg.mode == "active":
+        for me in range(n):
+            d = np.random.default_rng(cfg.seed * 1000 + me + 500).standard_normal(3)
+            u_cmd[me] = speed * d / np.linalg.norm(d)
+    rand_z, rand_noise = (
+        _random_motion_noise(cfg, n_steps)
+        if cfg.mode == "random"
+        else (np.zeros((n, 3)), np.zeros((n, 1, 3)))
+    )
+    des = np.zeros((n, n, 3))
+    has_des = np.zeros((n, n), dtype=bool)
+    for i, j, b in cfg.desired_beta_body:
+        des[i, j], has_des[i, j] = b, True
+    des_yaw = np.array(cfg.desired_yaw_rad or [0.0] * n, dtype=float)
+
+    n_rec = n_steps // runner.record_every + 1
+    k_count = len(pairs)
+    rec = Recording(
+        edges=edges,
+        pairs=pairs,
+        t_s=np.zeros(n_rec),
+        p_ned=np.zeros((n_rec, n, 3)),
+        yaw_rad=np.zeros((n_rec, n)),
+        v_ned=np.zeros((n_rec, n, 3)),
+        p_hat_ned=np.zeros((n_rec, n, 3)),
+        yaw_hat_rad=np.zeros((n_rec, n)),
+        chi_hat=np.full((n_rec, k_count), np.nan),
+        lambda_bar_est=np.zeros((n_rec, n)),
+        e_index_est=np.zeros((n_rec, n)),
+        k_e=np.zeros((n_rec, n)),
+        w_l=np.zeros((n_rec, n)),
+    )
+    lag_v = min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0
+    lag_w = min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0
+    team_kernel.simulate(
+        Gains.of(cfg),
+        team_kernel.MODE_CODES[cfg.mode],
+        n_steps,
+        dt,
+        frame_every,
+        delay,
+        runner.record_every,
+        cfg.excitation_relay_every,
+        cfg.e_window_s,
+        adj,
+        pairs.astype(np.int64),
+        des,
+        has_des,
+        des_yaw,
+        bool(cfg.desired_yaw_rad),
+        p,
+        yaw,
+        offsets,
+        p_hat,
+        yaw_hat,
+        chi,
+        u_cmd,
+        rand_z,
+        rand_noise,
+        speed,
+        bearing_noise,
+        runner.bearing_noise_rad,
+        vel_noise,
+        runner.velocity_noise_m_s,
+        runner.yaw_rate_noise_rad_s,
+        lag_v,
+        lag_w,
+        runner.loss,
+        np.random.default_rng([runner.seed, 11]),
+        rec.t_s,
+        rec.p_ned,
+        rec.yaw_rad,
+        rec.v_ned,
+        rec.p_hat_ned,
+        rec.yaw_hat_rad,
+        rec.chi_hat,
+        rec.lambda_bar_est,
+        rec.e_index_est,
+        rec.k_e,
+        rec.w_l,
+    )
+    if progress is not None:
+        progress(1.0)
+    return rec
