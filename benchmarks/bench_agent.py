@@ -4,10 +4,13 @@
   reciprocal, so agent 0 runs 5 SfM observers: the worst case), target median < 0.2 ms;
 * baseline in the same run: a step of an agent without neighbours (the fixed overhead);
   both timed by replaying agent 0's recorded inputs, in turn (``core_replay.py``);
-* a 20 s run of the N = 6 paper scenario and a run of N = 30 (ring + chords, 2 reciprocal and
-  2 one-way bearings each), reported as multiples of real time (target N = 6: >= 20x).
+* a 20 s run of the N = 6 paper scenarios and a run of N = 30 (ring + chords, 2 reciprocal and
+  2 one-way bearings each), reported as multiples of real time (target N = 6: >= 20x), with
+  the agent cores (one Python ``AgentCore`` per vehicle, the baseline) and the compiled engine
+  (``sim.compiled_runner``), measured in the same run; the compiled runs exclude compilation.
 
-Usage: ``python benchmarks/bench_agent.py [--duration 20] [--duration30 4] [--repeats 7]``.
+Usage: ``python benchmarks/bench_agent.py [--duration 20] [--duration30 4] [--repeats 7]
+[--runs 5]``.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 from core_replay import describe, record, time_cases
 
 from onboard.agent import AgentConfig
+from sim.compiled_runner import run_compiled
 from sim.runner import RunnerConfig, run
 from sim.scenarios import run_scenario
 
@@ -55,6 +59,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--duration30", type=float, default=4.0)
     ap.add_argument("--repeats", type=int, default=7, help="replays of each recorded run")
+    ap.add_argument("--runs", type=int, default=5, help="timed runs of the compiled engine")
     args = ap.parse_args()
 
     # one step, 5 neighbours
@@ -89,27 +94,35 @@ def main() -> None:
     print(f"  5 neighbours (5 observers): {describe(t['busy'])}  target < 0.2 ms")
     print(f"  baseline, no neighbours:    {describe(t['alone'])}; ratio {ratio:.1f}x")
 
-    t0 = time.perf_counter()
-    run_scenario("scale-formation-active", seed=0, duration_s=args.duration)
-    wall = time.perf_counter() - t0
-    print(
-        f"N = 6 scale-formation-active, {args.duration:.0f} s: {wall:.2f} s wall, "
-        f"{args.duration / wall:.1f}x real time (target >= 20x)"
-    )
-    t0 = time.perf_counter()
-    run_scenario("scale-active", seed=0, duration_s=args.duration)
-    wall = time.perf_counter() - t0
-    print(
-        f"N = 6 scale-active, {args.duration:.0f} s: {wall:.2f} s wall, "
-        f"{args.duration / wall:.1f}x real time"
-    )
+    # whole runs: the agent cores (the reference) and the compiled engine, in the same run
+    run_scenario("scale-active", duration_s=0.1, engine="compiled")  # compile or load it
+    print(f"whole runs, wall seconds (median of {args.runs}) and multiples of real time")
+    for name in ("scale-formation-active", "scale-active"):
+        row = {}
+        for engine in ("cores", "compiled"):
+            walls = []
+            for _ in range(args.runs if engine == "compiled" else 1):
+                t0 = time.perf_counter()
+                run_scenario(name, seed=0, duration_s=args.duration, engine=engine)
+                walls.append(time.perf_counter() - t0)
+            row[engine] = float(np.median(walls))
+        print(
+            f"  N = 6 {name}, {args.duration:.0f} s: cores {row['cores']:.2f} s "
+            f"({args.duration / row['cores']:.1f}x), compiled {row['compiled']:.3f} s "
+            f"({args.duration / row['compiled']:.0f}x; target >= 20x), "
+            f"ratio {row['cores'] / row['compiled']:.0f}"
+        )
     cfgs30, p30, y30 = _ring_team(30)
     t0 = time.perf_counter()
     run(cfgs30, p30, y30, RunnerConfig(duration_s=args.duration30, seed=0))
+    wall_cores = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    run_compiled(cfgs30, p30, y30, RunnerConfig(duration_s=args.duration, seed=0))
     wall = time.perf_counter() - t0
     print(
-        f"N = 30 active, {args.duration30:.0f} s: {wall:.2f} s wall, "
-        f"{args.duration30 / wall:.2f}x real time"
+        f"  N = 30 active: cores {args.duration30:.0f} s in {wall_cores:.2f} s "
+        f"({args.duration30 / wall_cores:.2f}x), compiled {args.duration:.0f} s in {wall:.2f} s "
+        f"({args.duration / wall:.1f}x)"
     )
 
 
