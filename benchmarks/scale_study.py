@@ -4,6 +4,7 @@ Runs every scale scenario for ``--seeds`` seeds and prints per-run results and m
 the active case with 1 degree bearing noise and 10 % message loss. Usage::
 
     python benchmarks/scale_study.py [--seeds 10] [--duration 20] [--json out.json]
+        [--engine cores|compiled]
 """
 
 from __future__ import annotations
@@ -30,6 +31,12 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--json", type=str, default=None)
+    ap.add_argument(
+        "--engine",
+        choices=("cores", "compiled"),
+        default="cores",
+        help="agent cores (the reference) or the compiled engine (~250x real time)",
+    )
     args = ap.parse_args()
     rows = []
     for name in SCENARIOS:
@@ -38,14 +45,19 @@ def main() -> None:
             res = {
                 "scenario": name,
                 "seed": seed,
-                **summarize(run_scenario(name, seed, args.duration)),
+                **summarize(run_scenario(name, seed, args.duration, engine=args.engine)),
             }
             res["wall_s"] = time.perf_counter() - t0
             rows.append(res)
             print(json.dumps(res), flush=True)
     for seed in range(args.seeds):
         rec = run_scenario(
-            "scale-active", seed, args.duration, bearing_noise_rad=math.radians(1.0), loss=0.1
+            "scale-active",
+            seed,
+            args.duration,
+            bearing_noise_rad=math.radians(1.0),
+            loss=0.1,
+            engine=args.engine,
         )
         res = {"scenario": "scale-active+noise1deg+loss10", "seed": seed, **summarize(rec)}
         rows.append(res)
