@@ -6,13 +6,13 @@
 remain the reference, and what the daemons fly. The two engines agree on the same seed (tests
 compare trajectories, convergence times and estimates), with these differences:
 
-* message loss draws its own random numbers (same probability, other realization);
-* a lost peer odometry sample is held, not interpolated, by the SfM observers;
+* message loss draws its own random numbers (same probability, other realization), so with
+  loss the runs differ; without it they agree to round-off;
 * supported: modes ``active``, ``random``, ``formation``, ``formation-active``, bearing and
   odometry noise, loss, latency and the autopilot lags. Not: camera latency, field of view,
   ranges, targets, the rigidity layer (:class:`ValueError` names the option).
 
-The first call compiles the kernel (about a minute on a small machine); numba caches it next
+The first call compiles the kernel (about 30 s on a small machine); numba caches it next
 to the sources (``__pycache__``), so later processes load it in about a second.
 """
 

@@ -17,11 +17,12 @@ with arrays where the core has dictionaries and payloads:
   each kind per neighbour, with its stamp, as the core does;
 * **the excitation table** is relayed as stamps only: the excitation of edge ``k`` stamped at
   step ``s`` is the one value its owner computed then (``lam_hist[s, k]``);
-* **the SfM observers** integrate instant ``k - delay`` at step ``k``, the newest instant whose
-  peer motion has arrived, with the own odometry of that instant and the camera frames taken
-  at it: the time alignment of :mod:`onboard.estimation.time_alignment` on a lock-step
-  clock. A lost peer sample is held (the core interpolates between its neighbours).
+* **the SfM observers** advance, as in ``AgentCore._advance_sfm``, to the newest instant at
+  which the own odometry, the peer's motion and a camera frame are all known, replaying the
+  instants in between with the frames taken at them and the peer's motion interpolated
+  between received samples (:mod:`onboard.estimation.time_alignment` on a lock-step clock).
 
+Without message loss the two engines agree to round-off (``tests/sim/test_compiled_runner.py``).
 Not supported (the wrapper refuses them): camera latency, field of view, ranges, targets and
 the rigidity layer.
 """
