@@ -68,13 +68,15 @@ def scenario(
     console = Console(stderr=True)
     with Progress(
         TextColumn(f"[bold]{name}[/] seed {seed}"),
+        TextColumn("{task.description}"),
         BarColumn(),
         TextColumn("{task.percentage:>3.0f}%"),
         TimeElapsedColumn(),
         console=console,
         transient=json,
     ) as progress:
-        task = progress.add_task("run", total=1.0)
+        note = "(compiled engine: the first run compiles it, about 30 s)"
+        task = progress.add_task(note if engine == "compiled" else "", total=1.0)
         if name in RIGIDITY_SCENARIOS:
             from sim.rigidity_scenarios import scenario_result
 
