@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import typer
 from typer.testing import CliRunner
@@ -56,3 +58,14 @@ def test_scenario_bad_options_exit_2(args: list[str], message: str) -> None:
     scenario_app.command()(scenario)
     r = runner.invoke(scenario_app, args)
     assert r.exit_code == 2 and message in r.output, r.output
+
+
+def test_scenario_with_the_compiled_engine_prints_its_result() -> None:
+    scenario_app = typer.Typer()
+    scenario_app.command()(scenario)
+    args = ["scale-active", "--engine", "compiled", "--duration", "0.5", "--json"]
+    r = runner.invoke(scenario_app, args)
+    assert r.exit_code == 0, r.output
+    result = json.loads(r.output.strip().splitlines()[-1])
+    assert result["engine"] == "compiled" and result["duration_s"] == 0.5
+    assert result["final_scale_ratio"] > 0.0
