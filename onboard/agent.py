@@ -580,6 +580,8 @@ class AgentCore:
         if not self._fresh(tau1, t_s) or self.yaw_edges[j].offset_rad is None:
             return False
         tau0 = self._sfm_t.get(j, tau1)
+        if tau0 == tau1 and j in self._sfm_t:  # no new instant (9 steps in 10 at 50 Hz frames)
+            return True
         if tau1 - tau0 > self.config.peer_timeout_s:  # after a gap: restart, do not integrate
             tau0 = tau1
             edge.resync()
