@@ -22,6 +22,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
+import msgspec
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -79,7 +80,7 @@ class Gains(NamedTuple):
 
 
 def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
-    first = configs[0]
+    team = msgspec.structs.replace(configs[0], agent_id=0)
     for i, c in enumerate(configs):
         if c.agent_id != i:
             raise ValueError(f"configs[{i}] has agent_id {c.agent_id}: give them in id order")
@@ -87,11 +88,7 @@ def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
             raise ValueError(f"the compiled engine has no mode {c.mode!r}; use engine 'cores'")
         if c.rigidity_maintenance:
             raise ValueError("the compiled engine has no rigidity layer; use engine 'cores'")
-        if c.__struct_fields__ and any(
-            getattr(c, f) != getattr(first, f)
-            for f in c.__struct_fields__
-            if f not in ("agent_id",)
-        ):
+        if msgspec.structs.replace(c, agent_id=0) != team:
             raise ValueError("the compiled engine needs one configuration for the whole team")
     unsupported = {
         "camera_latency_s": runner.camera_latency_s != 0.0,
@@ -178,23 +175,7 @@ def run_compiled(
         des[i, j], has_des[i, j] = b, True
     des_yaw = np.array(cfg.desired_yaw_rad or [0.0] * n, dtype=float)
 
-    n_rec = n_steps // runner.record_every + 1
-    k_count = len(pairs)
-    rec = Recording(
-        edges=edges,
-        pairs=pairs,
-        t_s=np.zeros(n_rec),
-        p_ned=np.zeros((n_rec, n, 3)),
-        yaw_rad=np.zeros((n_rec, n)),
-        v_ned=np.zeros((n_rec, n, 3)),
-        p_hat_ned=np.zeros((n_rec, n, 3)),
-        yaw_hat_rad=np.zeros((n_rec, n)),
-        chi_hat=np.full((n_rec, k_count), np.nan),
-        lambda_bar_est=np.zeros((n_rec, n)),
-        e_index_est=np.zeros((n_rec, n)),
-        k_e=np.zeros((n_rec, n)),
-        w_l=np.zeros((n_rec, n)),
-    )
+    rec = Recording.allocate(edges, pairs, n, n_steps // runner.record_every + 1)
     lag_v = min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0
     lag_w = min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0
     team_kernel.simulate(

@@ -105,6 +105,26 @@ class Recording:
     """``(E, 3)`` desired bearings in edge order, for formation scenarios."""
     dropped: dict[str, int] = field(default_factory=dict)
 
+    @classmethod
+    def allocate(cls, edges: IntArray, pairs: IntArray, n_agents: int, n_samples: int) -> Recording:
+        """Zeroed arrays for ``n_samples`` samples of ``n_agents`` (``chi_hat`` NaN: no estimate)."""
+        n, t = n_agents, n_samples
+        return cls(
+            edges=edges,
+            pairs=pairs,
+            t_s=np.zeros(t),
+            p_ned=np.zeros((t, n, 3)),
+            yaw_rad=np.zeros((t, n)),
+            v_ned=np.zeros((t, n, 3)),
+            p_hat_ned=np.zeros((t, n, 3)),
+            yaw_hat_rad=np.zeros((t, n)),
+            chi_hat=np.full((t, len(pairs)), np.nan),
+            lambda_bar_est=np.zeros((t, n)),
+            e_index_est=np.zeros((t, n)),
+            k_e=np.zeros((t, n)),
+            w_l=np.zeros((t, n)),
+        )
+
     @property
     def chi_true(self) -> FloatArray:
         r = self.p_ned[:, self.pairs[:, 1]] - self.p_ned[:, self.pairs[:, 0]]
@@ -229,22 +249,7 @@ def run(
     frame_every = max(1, round(1.0 / (runner.camera_rate_hz * dt)))
     lag = round(runner.latency_s / dt)
     n_rec = n_steps // runner.record_every + 1
-    k_count = len(pairs)
-    rec = Recording(
-        edges=edges,
-        pairs=pairs,
-        t_s=np.zeros(n_rec),
-        p_ned=np.zeros((n_rec, n, 3)),
-        yaw_rad=np.zeros((n_rec, n)),
-        v_ned=np.zeros((n_rec, n, 3)),
-        p_hat_ned=np.zeros((n_rec, n, 3)),
-        yaw_hat_rad=np.zeros((n_rec, n)),
-        chi_hat=np.full((n_rec, k_count), np.nan),
-        lambda_bar_est=np.zeros((n_rec, n)),
-        e_index_est=np.zeros((n_rec, n)),
-        k_e=np.zeros((n_rec, n)),
-        w_l=np.zeros((n_rec, n)),
-    )
+    rec = Recording.allocate(edges, pairs, n, n_rec)
 
     p = p0.tolist()
     yaw = y0.tolist()
