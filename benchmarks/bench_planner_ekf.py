@@ -17,14 +17,19 @@ Protocol (paper 004 Section VII-B, adapted; see ``groundstation/planner/validati
 - ``--fov DEG``: plan with eq. 19-20 and give the camera that field of view (+10 deg margin,
   :data:`CAMERA_MARGIN_DEG`), pointed at the
   planned heading at each waypoint (random placements: the heading that sees the most
-  landmarks); ``--spin`` keeps the FOV plan but lets the vehicle see every landmark.
+  landmarks; ``--random-headings planned``: at the planned headings, the same mission with
+  its yaw); ``--spin`` keeps the FOV plan but lets the vehicle see every landmark.
+- ``--odometry-noise K``: multiply the odometry's white noise and bias random walk by K.
 - Metric: final position error (the paper's "drift") and mean error over the mission,
   averaged over runs; reduction = 1 - planned / random. Same odometry noise for all.
 
 Also printed: the planning objective (worst trace at the setpoints) of the planned and of the
-random placements, which the error reductions follow.
+random placements, and what the planner's one-update model predicts for the same random draws:
+the reduction of the worst trace (what the planner minimizes) and of the mean 1-sigma radius
+over the setpoints (what a mean error follows).
 
-Usage: ``python benchmarks/bench_planner_ekf.py [--runs R] [--sigma S ...] [--fov DEG]``.
+Usage: ``python benchmarks/bench_planner_ekf.py [--runs R] [--sigma S ...] [--fov DEG]
+[--random-headings best|planned] [--spin] [--odometry-noise K]``.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +51,7 @@ from groundstation.planner.validation import (
     OdometryNoise,
     best_view_headings,
     fly_mission,
+    predicted_reductions,
     random_landmarks_in_hull,
     run_errors,
 )
@@ -74,12 +81,19 @@ def validate_cell(
     runs: int,
     placer: IpoptPlacer,
     camera_limited: bool = True,
+    random_headings: str = "best",
+    odometry_scale: float = 1.0,
 ) -> dict[str, float]:
     """Mean errors of planned, random and no landmarks on one mission, over ``runs`` runs.
 
     With ``fov_deg`` and ``camera_limited`` the camera sees only inside its field of view:
-    at the planned headings for the planned placement, at the headings that see the most
-    landmarks (:func:`best_view_headings`) for the random one.
+    at the planned headings for the planned placement; for the random one at the headings that
+    see the most landmarks (:func:`best_view_headings`, ``random_headings="best"``) or at the
+    planned ones (``"planned"``: the same mission, yaw included). ``odometry_scale`` multiplies
+    the odometry's white noise and bias random walk.
+
+    Also returned: what the one-update model predicts (:func:`predicted_reductions`) for the
+    same random draws.
     """
     waypoints = np.asarray(MISSIONS[name])
     mission = Mission(waypoints, speed_mps=SPEED_MPS, rounds=ROUNDS)
@@ -87,17 +101,22 @@ def validate_cell(
         waypoints, m, sigma_m, PRIOR_COV, R_MIN_M, R_MAX_M, fov_deg=fov_deg, ground_down_m=0.0
     )
     planned = placer.solve(problem, seed=0, starts=5)
-    noise = OdometryNoise()
+    base = OdometryNoise()
+    noise = replace(
+        base,
+        white_mps=base.white_mps * odometry_scale,
+        bias_walk_mps_per_sqrt_s=base.bias_walk_mps_per_sqrt_s * odometry_scale,
+    )
     rows: dict[str, list[tuple[float, float]]] = {"planned": [], "random": [], "none": []}
-    random_objective = []
+    random_traces = []
     for run in range(runs):
         random_lm = random_landmarks_in_hull(
             waypoints, m, 0.0, R_MIN_M, np.random.default_rng([7, m, run])
         )
-        random_objective.append(float(np.max(landmark_traces(problem, random_lm))))
+        random_traces.append(landmark_traces(problem, random_lm))
         cases = (
             ("planned", planned.landmarks_ned, planned.headings_rad),
-            ("random", random_lm, None),
+            ("random", random_lm, planned.headings_rad if random_headings == "planned" else None),
             ("none", np.zeros((0, 3)), np.zeros(len(waypoints))),
         )
         for key, landmarks, headings in cases:
@@ -109,9 +128,12 @@ def validate_cell(
                 view = {"headings_rad": headings, "fov_rad": fov}
             e = run_errors(mission, landmarks, sigma_m, noise, seed=(11, run), **view)
             rows[key].append((e.final_m, e.mean_m))
+    predicted = predicted_reductions(landmark_traces(problem, planned.landmarks_ned), random_traces)
     out = {
         "objective_planned": planned.objective,
-        "objective_random": float(np.mean(random_objective)),
+        "objective_random": float(np.mean(np.max(random_traces, axis=1))),
+        "predicted_worst_trace": predicted.worst_trace,
+        "predicted_mean_radius": predicted.mean_radius,
     }
     for key, values in rows.items():
         arr = np.asarray(values)
@@ -123,40 +145,58 @@ def validate_cell(
 
 
 def ekf_validation(
-    runs: int, sigmas: list[float], fov_deg: float | None, camera_limited: bool = True
+    runs: int,
+    sigmas: list[float],
+    fov_deg: float | None,
+    camera_limited: bool = True,
+    random_headings: str = "best",
+    odometry_scale: float = 1.0,
 ) -> dict[str, object]:
     placer = IpoptPlacer()
     record: dict[str, object] = {}
     fov_text = "no field-of-view constraint" if fov_deg is None else f"FOV {fov_deg:g} deg"
     if fov_deg is not None:
         camera = f", camera {fov_deg + CAMERA_MARGIN_DEG:g} deg"
+        camera += f" (random placements: {random_headings} headings)"
         fov_text += camera if camera_limited else ", every landmark seen"
-    print(f"EKF validation: {runs} runs per cell, planar landmarks, {fov_text}")
+    print(
+        f"EKF validation: {runs} runs per cell, planar landmarks, {fov_text},"
+        f" odometry noise x{odometry_scale:g}"
+    )
+    print("'1-update': reductions the one-update model predicts (worst trace / mean radius)")
     for sigma in sigmas:
         print(f"\nsigma_m = {sigma:g}")
         print(f"{'mission':>10} {'M':>2} {'km':>5} {'obj plan/rand':>14} "
               f"{'drift planned':>14} {'random':>12} {'odometry':>9} {'drift red.':>10} "
-              f"{'mean-err red.':>13}")  # fmt: skip
-        final_red, mean_red = [], []
+              f"{'mean-err red.':>13} {'1-update':>9}")  # fmt: skip
+        final_red, mean_red, worst_pred, radius_pred = [], [], [], []
         for name in MISSIONS:
             for m in (2, 3):
-                c = validate_cell(name, m, sigma, fov_deg, runs, placer, camera_limited)
+                c = validate_cell(
+                    name, m, sigma, fov_deg, runs, placer, camera_limited, random_headings,
+                    odometry_scale,
+                )  # fmt: skip
                 fr = 1.0 - c["final_planned"] / c["final_random"]
                 mr = 1.0 - c["mean_planned"] / c["mean_random"]
                 final_red.append(fr)
                 mean_red.append(mr)
+                worst_pred.append(c["predicted_worst_trace"])
+                radius_pred.append(c["predicted_mean_radius"])
                 record[f"{sigma},{name},{m}"] = c
                 print(
                     f"{name:>10} {m:>2} {c['length_m'] / 1e3:5.2f}"
                     f" {c['objective_planned']:6.1f}/{c['objective_random']:<7.1f}"
                     f" {c['final_planned']:6.2f}+-{c['final_planned_se']:.2f}"
                     f" {c['final_random']:6.2f}+-{c['final_random_se']:.2f}"
-                    f" {c['final_none']:9.2f} {100 * fr:9.0f}% {100 * mr:12.0f}%",
+                    f" {c['final_none']:9.2f} {100 * fr:9.0f}% {100 * mr:12.0f}%"
+                    f" {100 * worst_pred[-1]:4.0f}/{100 * radius_pred[-1]:.0f}%",
                     flush=True,
                 )
         print(
             f"  average reduction vs random: drift {100 * np.mean(final_red):.0f}%,"
-            f" mean error {100 * np.mean(mean_red):.0f}% (target >= 50%; paper 59% drift)"
+            f" mean error {100 * np.mean(mean_red):.0f}% (target >= 50%; paper 59% drift);"
+            f" one-update model: worst trace {100 * np.mean(worst_pred):.0f}%,"
+            f" mean radius {100 * np.mean(radius_pred):.0f}%"
         )
     return record
 
@@ -169,9 +209,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--spin", action="store_true", help="with --fov: the camera still sees every landmark"
     )
+    ap.add_argument(
+        "--random-headings",
+        choices=("best", "planned"),
+        default="best",
+        help="with --fov: random placements are seen from the headings that see most of them"
+        " (best) or from the planned ones (planned: the same mission, yaw included)",
+    )
+    ap.add_argument(
+        "--odometry-noise",
+        type=float,
+        default=1.0,
+        metavar="K",
+        help="multiply the odometry's white noise and bias random walk by K",
+    )
     args = ap.parse_args(argv)
+    if args.odometry_noise <= 0 or args.runs < 2:
+        ap.error("--odometry-noise must be positive and --runs at least 2")
     t0 = time.perf_counter()
-    ekf_validation(args.runs, args.sigma, args.fov, camera_limited=not args.spin)
+    ekf_validation(
+        args.runs,
+        args.sigma,
+        args.fov,
+        camera_limited=not args.spin,
+        random_headings=args.random_headings,
+        odometry_scale=args.odometry_noise,
+    )
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0
 

@@ -224,6 +224,39 @@ def random_landmarks_in_hull(
 
 
 @dataclass(frozen=True)
+class PredictedReductions:
+    """What the one-update model (paper 004 eq. 4, 7) predicts a placement gains over another.
+
+    Each field is ``1 - planned / baseline`` of a statistic of the setpoints' traces
+    ``tr(J^-1)``: the **worst** trace (what the planner minimizes), the mean trace, and the mean
+    1-sigma radius ``sqrt(tr)``, the one a mean position error follows.
+    """
+
+    worst_trace: float
+    mean_trace: float
+    mean_radius: float
+
+
+def predicted_reductions(
+    traces_planned: ArrayLike, traces_baseline: ArrayLike
+) -> PredictedReductions:
+    """Reductions of the planned traces ``(N,)`` against baseline draws ``(R, N)``.
+
+    The baseline statistics are averaged over the ``R`` draws (one row per random placement).
+    A placement can cut the worst setpoint's trace a lot and its mean radius little: the
+    minimax objective lifts the worst-seen setpoints, while most setpoints of a random placement
+    are already seen well.
+    """
+    tp = np.asarray(traces_planned, dtype=float).reshape(-1)
+    tb = np.asarray(traces_baseline, dtype=float).reshape(-1, tp.size)
+    return PredictedReductions(
+        worst_trace=float(1.0 - tp.max() / tb.max(axis=1).mean()),
+        mean_trace=float(1.0 - tp.mean() / tb.mean()),
+        mean_radius=float(1.0 - np.sqrt(tp).mean() / np.sqrt(tb).mean()),
+    )
+
+
+@dataclass(frozen=True)
 class TrackErrors:
     """Position errors of one run: at the end (drift) and averaged over the mission, m."""
 

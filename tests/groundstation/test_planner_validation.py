@@ -12,6 +12,7 @@ from groundstation.planner.validation import (
     ekf_track,
     fly_mission,
     in_view,
+    predicted_reductions,
     random_landmarks_in_hull,
     run_errors,
     simulate_bearings,
@@ -106,3 +107,14 @@ def test_landmarks_outside_the_view_are_not_used() -> None:
     assert blind == none
     with pytest.raises(ValueError, match="heading"):
         run_errors(mission, far, 0.1, OdometryNoise(), (5,), fov_rad=1.0)
+
+
+def test_predicted_reductions_separate_the_worst_setpoint_from_the_typical_one() -> None:
+    # Planned: both setpoints at trace 1. Random draws: one setpoint at 4 (badly seen), one at
+    # 0.25, then both at 1. By hand: worst 1 - 1/2.5, mean trace 1 - 1/1.5625, mean radius
+    # 1 - 1/1.125.
+    red = predicted_reductions([1.0, 1.0], [[4.0, 0.25], [1.0, 1.0]])
+    assert red.worst_trace == pytest.approx(0.6)
+    assert red.mean_trace == pytest.approx(1.0 - 1.0 / 1.5625)
+    assert red.mean_radius == pytest.approx(1.0 - 1.0 / 1.125)
+    assert predicted_reductions([2.0, 3.0], [[2.0, 3.0]]).mean_radius == pytest.approx(0.0)
