@@ -29,7 +29,7 @@ the reduction of the worst trace (what the planner minimizes) and of the mean 1-
 over the setpoints (what a mean error follows).
 
 Usage: ``python benchmarks/bench_planner_ekf.py [--runs R] [--sigma S ...] [--fov DEG]
-[--random-headings best|planned] [--spin] [--odometry-noise K]``.
+[--random-headings best|planned] [--spin] [--odometry-noise K] [--plot FILE]``.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +107,17 @@ def lowest_mean_radius(problem: PlacementProblem, starts: int = 30, seed: int = 
     return best
 
 
+@dataclass(frozen=True)
+class CellTracks:
+    """What the figure shows of one cell: the placements and the errors over the mission."""
+
+    waypoints_ned: np.ndarray  # (K, 3)
+    planned_ned: np.ndarray  # (M, 3)
+    random_ned: np.ndarray  # (runs, M, 3), one draw per run
+    error_m: dict[str, np.ndarray]  # "planned", "random", "none": mean over runs, (T,)
+    dt_s: float
+
+
 def validate_cell(
     name: str,
     m: int,
@@ -117,7 +128,7 @@ def validate_cell(
     camera_limited: bool = True,
     random_headings: str = "best",
     odometry_scale: float = 1.0,
-) -> dict[str, float]:
+) -> tuple[dict[str, float], CellTracks]:
     """Mean errors of planned, random and no landmarks on one mission, over ``runs`` runs.
 
     With ``fov_deg`` and ``camera_limited`` the camera sees only inside its field of view:
@@ -142,12 +153,14 @@ def validate_cell(
         bias_walk_mps_per_sqrt_s=base.bias_walk_mps_per_sqrt_s * odometry_scale,
     )
     rows: dict[str, list[tuple[float, float]]] = {"planned": [], "random": [], "none": []}
-    random_traces = []
+    series: dict[str, list[np.ndarray]] = {key: [] for key in rows}
+    random_traces, random_draws = [], []
     for run in range(runs):
         random_lm = random_landmarks_in_hull(
             waypoints, m, 0.0, R_MIN_M, np.random.default_rng([7, m, run])
         )
         random_traces.append(landmark_traces(problem, random_lm))
+        random_draws.append(random_lm)
         cases = (
             ("planned", planned.landmarks_ned, planned.headings_rad),
             ("random", random_lm, planned.headings_rad if random_headings == "planned" else None),
@@ -162,6 +175,7 @@ def validate_cell(
                 view = {"headings_rad": headings, "fov_rad": fov}
             e = run_errors(mission, landmarks, sigma_m, noise, seed=(11, run), **view)
             rows[key].append((e.final_m, e.mean_m))
+            series[key].append(e.series_m)
     predicted = predicted_reductions(landmark_traces(problem, planned.landmarks_ned), random_traces)
     mean_radius_random = float(np.mean(np.sqrt(random_traces)))
     out = {
@@ -177,7 +191,67 @@ def validate_cell(
         out[f"final_{key}_se"] = float(arr[:, 0].std(ddof=1) / np.sqrt(len(arr)))
     path = fly_mission(mission).p_ned
     out["length_m"] = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
-    return out
+    tracks = CellTracks(
+        waypoints_ned=waypoints,
+        planned_ned=planned.landmarks_ned,
+        random_ned=np.asarray(random_draws),
+        error_m={key: np.mean(values, axis=0) for key, values in series.items()},
+        dt_s=mission.dt_s,
+    )
+    return out, tracks
+
+
+def plot_validation(tracks: dict[tuple[str, int], CellTracks], title: str, path: Path) -> None:
+    """One row per mission: a top view of the waypoints, the planned landmarks and the random
+    draws, then the mean position error over the mission for each M (log scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(dict.fromkeys(name for name, _ in tracks))
+    ms = sorted({m for _, m in tracks})
+    fig, axes = plt.subplots(
+        len(names), 1 + len(ms), figsize=(4.2 * (1 + len(ms)), 3.4 * len(names)), squeeze=False
+    )
+    colours = {"planned": "tab:blue", "random": "tab:orange", "none": "0.5"}
+    labels = {"planned": "planned", "random": "random in the hull", "none": "odometry only"}
+    markers = {2: "^", 3: "*"}
+    for row, name in enumerate(names):
+        top = axes[row, 0]
+        w = tracks[(name, ms[0])].waypoints_ned
+        loop = np.vstack([w, w[:1]])
+        top.plot(loop[:, 1], loop[:, 0], "k-o", ms=3, lw=1, label="waypoints")
+        for m in ms:
+            c = tracks[(name, m)]
+            r = c.random_ned.reshape(-1, 3)
+            top.scatter(
+                r[:, 1], r[:, 0], s=6, c=colours["random"], alpha=0.35, lw=0,
+                label="random draws" if m == ms[0] else None,
+            )  # fmt: skip
+            top.scatter(
+                c.planned_ned[:, 1], c.planned_ned[:, 0], s=90, marker=markers.get(m, "s"),
+                c=colours["planned"], edgecolors="k", label=f"planned, M = {m}",
+            )  # fmt: skip
+        top.set_aspect("equal")
+        top.set_xlabel("east (m)")
+        top.set_ylabel(f"{name}\nnorth (m)")
+        top.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2)
+        for col, m in enumerate(ms, start=1):
+            ax = axes[row, col]
+            c = tracks[(name, m)]
+            for key, err in c.error_m.items():
+                t = np.arange(len(err)) * c.dt_s
+                ax.semilogy(t, err, color=colours[key], lw=1, label=labels[key])
+            ax.set_title(f"{name}, M = {m}", fontsize=9)
+            ax.set_xlabel("time (s)")
+            ax.set_ylabel("mean position error (m)")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def ekf_validation(
@@ -187,7 +261,9 @@ def ekf_validation(
     camera_limited: bool = True,
     random_headings: str = "best",
     odometry_scale: float = 1.0,
+    plot: Path | None = None,
 ) -> dict[str, object]:
+    """Print the table of every sigma; with ``plot``, draw the first sigma's cells there."""
     placer = IpoptPlacer()
     record: dict[str, object] = {}
     fov_text = "no field-of-view constraint" if fov_deg is None else f"FOV {fov_deg:g} deg"
@@ -209,9 +285,10 @@ def ekf_validation(
               f"{'drift planned':>14} {'random':>12} {'odometry':>9} {'drift red.':>10} "
               f"{'mean-err red.':>13} {'1-update':>13}")  # fmt: skip
         final_red, mean_red, worst_pred, radius_pred, radius_possible = [], [], [], [], []
+        tracks: dict[tuple[str, int], CellTracks] = {}
         for name in MISSIONS:
             for m in (2, 3):
-                c = validate_cell(
+                c, tracks[(name, m)] = validate_cell(
                     name, m, sigma, fov_deg, runs, placer, camera_limited, random_headings,
                     odometry_scale,
                 )  # fmt: skip
@@ -240,6 +317,13 @@ def ekf_validation(
             f" mean radius {100 * np.mean(radius_pred):.0f}%,"
             f" at best {100 * np.mean(radius_possible):.0f}%"
         )
+        if plot is not None and sigma == sigmas[0]:
+            title = (
+                f"EKF along the mission, sigma_m = {sigma:g}, {fov_text}: mean over {runs} runs;"
+                f" drift {100 * np.mean(final_red):.0f}% lower with the planned landmarks"
+            )
+            plot_validation(tracks, title, plot)
+            print(f"  figure: {plot}")
     return record
 
 
@@ -265,9 +349,14 @@ def main(argv: list[str] | None = None) -> int:
         metavar="K",
         help="multiply the odometry's white noise and bias random walk by K",
     )
+    ap.add_argument(
+        "--plot", type=Path, default=None, metavar="FILE", help="figure of the first sigma's runs"
+    )
     args = ap.parse_args(argv)
     if args.odometry_noise <= 0 or args.runs < 2:
         ap.error("--odometry-noise must be positive and --runs at least 2")
+    if args.plot is not None and not args.plot.parent.is_dir():
+        ap.error(f"--plot: no directory {args.plot.parent}")
     t0 = time.perf_counter()
     ekf_validation(
         args.runs,
@@ -276,6 +365,7 @@ def main(argv: list[str] | None = None) -> int:
         camera_limited=not args.spin,
         random_headings=args.random_headings,
         odometry_scale=args.odometry_noise,
+        plot=args.plot,
     )
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0

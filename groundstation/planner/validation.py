@@ -258,10 +258,12 @@ def predicted_reductions(
 
 @dataclass(frozen=True)
 class TrackErrors:
-    """Position errors of one run: at the end (drift) and averaged over the mission, m."""
+    """Position errors of one run: at the end (drift), averaged over the mission, and the
+    whole series (one per sample of the flight, every ``Mission.dt_s``), m."""
 
     final_m: float
     mean_m: float
+    series_m: FloatArray
 
 
 def run_errors(
@@ -301,4 +303,4 @@ def run_errors(
         v_meas, flight.dt_s, flight.keyframes, y, z, sigma_m, noise, p0, p0_sigma_m, visible
     )
     err = np.linalg.norm(est - flight.p_ned, axis=1)
-    return TrackErrors(final_m=float(err[-1]), mean_m=float(np.mean(err)))
+    return TrackErrors(final_m=float(err[-1]), mean_m=float(np.mean(err)), series_m=err)
