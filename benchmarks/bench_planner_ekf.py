@@ -19,7 +19,9 @@ Protocol (paper 004 Section VII-B, adapted; see ``groundstation/planner/validati
   planned heading at each waypoint (random placements: the heading that sees the most
   landmarks; ``--random-headings planned``: at the planned headings, the same mission with
   its yaw); ``--spin`` keeps the FOV plan but lets the vehicle see every landmark.
-- ``--odometry-noise K``: multiply the odometry's white noise and bias random walk by K.
+- ``--odometry-noise K``: multiply the odometry's white noise and bias random walk by K;
+  ``--detection-range M``: landmarks farther than M metres go unseen (not in the planner's
+  model; both are sensitivity studies).
 - Metric: final position error (the paper's "drift") and mean error over the mission,
   averaged over runs; reduction = 1 - planned / random. Same odometry noise for all.
 
@@ -29,7 +31,8 @@ the reduction of the worst trace (what the planner minimizes) and of the mean 1-
 over the setpoints (what a mean error follows).
 
 Usage: ``python benchmarks/bench_planner_ekf.py [--runs R] [--sigma S ...] [--fov DEG]
-[--random-headings best|planned] [--spin] [--odometry-noise K] [--plot FILE]``.
+[--random-headings best|planned] [--spin] [--odometry-noise K] [--detection-range M]
+[--plot FILE]``.
 """
 
 from __future__ import annotations
@@ -128,6 +131,7 @@ def validate_cell(
     camera_limited: bool = True,
     random_headings: str = "best",
     odometry_scale: float = 1.0,
+    detection_range_m: float | None = None,
 ) -> tuple[dict[str, float], CellTracks]:
     """Mean errors of planned, random and no landmarks on one mission, over ``runs`` runs.
 
@@ -135,7 +139,8 @@ def validate_cell(
     at the planned headings for the planned placement; for the random one at the headings that
     see the most landmarks (:func:`best_view_headings`, ``random_headings="best"``) or at the
     planned ones (``"planned"``: the same mission, yaw included). ``odometry_scale`` multiplies
-    the odometry's white noise and bias random walk.
+    the odometry's white noise and bias random walk; ``detection_range_m`` hides landmarks
+    farther than that from the camera, for every placement.
 
     Also returned: what the one-update model predicts (:func:`predicted_reductions`) for the
     same random draws.
@@ -167,12 +172,12 @@ def validate_cell(
             ("none", np.zeros((0, 3)), np.zeros(len(waypoints))),
         )
         for key, landmarks, headings in cases:
-            view: dict[str, object] = {}
+            view: dict[str, object] = {"detection_range_m": detection_range_m}
             if fov_deg is not None and camera_limited:
                 fov = np.radians(fov_deg + CAMERA_MARGIN_DEG)
                 if headings is None:
                     headings = best_view_headings(waypoints, landmarks, fov)
-                view = {"headings_rad": headings, "fov_rad": fov}
+                view |= {"headings_rad": headings, "fov_rad": fov}
             e = run_errors(mission, landmarks, sigma_m, noise, seed=(11, run), **view)
             rows[key].append((e.final_m, e.mean_m))
             series[key].append(e.series_m)
@@ -262,6 +267,7 @@ def ekf_validation(
     random_headings: str = "best",
     odometry_scale: float = 1.0,
     plot: Path | None = None,
+    detection_range_m: float | None = None,
 ) -> dict[str, object]:
     """Print the table of every sigma; with ``plot``, draw the first sigma's cells there."""
     placer = IpoptPlacer()
@@ -271,6 +277,8 @@ def ekf_validation(
         camera = f", camera {fov_deg + CAMERA_MARGIN_DEG:g} deg"
         camera += f" (random placements: {random_headings} headings)"
         fov_text += camera if camera_limited else ", every landmark seen"
+    if detection_range_m is not None:
+        fov_text += f", detection range {detection_range_m:g} m"
     print(
         f"EKF validation: {runs} runs per cell, planar landmarks, {fov_text},"
         f" odometry noise x{odometry_scale:g}"
@@ -290,7 +298,7 @@ def ekf_validation(
             for m in (2, 3):
                 c, tracks[(name, m)] = validate_cell(
                     name, m, sigma, fov_deg, runs, placer, camera_limited, random_headings,
-                    odometry_scale,
+                    odometry_scale, detection_range_m,
                 )  # fmt: skip
                 fr = 1.0 - c["final_planned"] / c["final_random"]
                 mr = 1.0 - c["mean_planned"] / c["mean_random"]
@@ -350,11 +358,20 @@ def main(argv: list[str] | None = None) -> int:
         help="multiply the odometry's white noise and bias random walk by K",
     )
     ap.add_argument(
+        "--detection-range",
+        type=float,
+        default=None,
+        metavar="M",
+        help="landmarks farther than M metres are not detected (any placement)",
+    )
+    ap.add_argument(
         "--plot", type=Path, default=None, metavar="FILE", help="figure of the first sigma's runs"
     )
     args = ap.parse_args(argv)
     if args.odometry_noise <= 0 or args.runs < 2:
         ap.error("--odometry-noise must be positive and --runs at least 2")
+    if args.detection_range is not None and not args.detection_range > 0:
+        ap.error("--detection-range must be positive")
     if args.plot is not None and not args.plot.parent.is_dir():
         ap.error(f"--plot: no directory {args.plot.parent}")
     t0 = time.perf_counter()
@@ -366,6 +383,7 @@ def main(argv: list[str] | None = None) -> int:
         random_headings=args.random_headings,
         odometry_scale=args.odometry_noise,
         plot=args.plot,
+        detection_range_m=args.detection_range,
     )
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     return 0

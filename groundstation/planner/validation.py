@@ -275,12 +275,15 @@ def run_errors(
     p0_sigma_m: float = 1.0,
     headings_rad: ArrayLike | None = None,
     fov_rad: float | None = None,
+    detection_range_m: float | None = None,
 ) -> TrackErrors:
     """Simulate one flight with seeded noise and return the EKF's errors.
 
     With ``fov_rad`` the camera has that field of view and, at waypoint ``i``, the heading
     ``headings_rad[i]``: only landmarks inside the cone are measured. Without it the vehicle
-    sees every landmark (it yaws around at each waypoint, paper 004 Assumption 2).
+    sees every landmark (it yaws around at each waypoint, paper 004 Assumption 2). With
+    ``detection_range_m`` landmarks farther than that are not detected (not in the planner's
+    model: a sensitivity study).
 
     The same ``seed`` gives the same path noise and odometry for any landmarks (the bearing
     noise is drawn from a separate stream), so placements are compared on equal terms.
@@ -293,12 +296,15 @@ def run_errors(
     v_meas = simulate_odometry(flight, noise, rng_odo)
     z = np.asarray(landmarks_ned, dtype=float).reshape(-1, 3)
     y = simulate_bearings(flight, z, sigma_m, rng_bearing)
-    visible = None
+    p_key = flight.p_ned[flight.keyframes]
+    visible = np.ones((len(p_key), len(z)), dtype=bool)
     if fov_rad is not None:
         if headings_rad is None:
             raise ValueError("a field of view needs one heading per waypoint")
         yaw = np.asarray(headings_rad, dtype=float)[flight.waypoint_index]
-        visible = in_view(flight.p_ned[flight.keyframes], yaw, z, fov_rad)
+        visible &= in_view(p_key, yaw, z, fov_rad)
+    if detection_range_m is not None:
+        visible &= np.linalg.norm(z[None, :, :] - p_key[:, None, :], axis=-1) <= detection_range_m
     est = ekf_track(
         v_meas, flight.dt_s, flight.keyframes, y, z, sigma_m, noise, p0, p0_sigma_m, visible
     )

@@ -110,6 +110,10 @@ def test_landmarks_outside_the_view_are_not_used() -> None:
     blind = run_errors(mission, far, 0.1, OdometryNoise(), (5,), headings_rad=away, fov_rad=1.0)
     none = run_errors(mission, np.zeros((0, 3)), 0.1, OdometryNoise(), (5,))
     np.testing.assert_array_equal(blind.series_m, none.series_m)
+    short = run_errors(mission, far, 0.1, OdometryNoise(), (5,), detection_range_m=150.0)
+    np.testing.assert_array_equal(short.series_m, none.series_m)
+    seen = run_errors(mission, far, 0.1, OdometryNoise(), (5,), detection_range_m=250.0)
+    assert not np.array_equal(seen.series_m, none.series_m)
     with pytest.raises(ValueError, match="heading"):
         run_errors(mission, far, 0.1, OdometryNoise(), (5,), fov_rad=1.0)
 
