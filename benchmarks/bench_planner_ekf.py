@@ -83,12 +83,13 @@ MISSIONS = {
 
 
 def lowest_mean_radius(problem: PlacementProblem, starts: int = 30, seed: int = 0) -> float:
-    """The lowest mean 1-sigma radius ``mean_i sqrt(tr J_i^-1)`` any ground placement reaches.
+    """The lowest mean 1-sigma radius ``mean_i sqrt(tr J_i^-1)`` a ground placement reaches.
 
-    An analysis bound, not a planner: SLSQP from ``starts`` seeded random starts in the
+    An analysis tool, not a planner: SLSQP from ``starts`` seeded random starts in the
     ``R_max`` square, over the landmarks' north and east, with the planner's constraints
-    (without the field of view). It tells how much lower than a baseline's the mean radius
-    can be made at all, whatever the objective.
+    (without the field of view). It estimates how much lower than a baseline's the mean radius
+    can be made at all, whatever the objective (the best of local searches: an estimate of the
+    global minimum, not a certificate; the plan itself never beat it).
     """
     m, down = problem.n_landmarks, problem.ground_down_m or 0.0
 
