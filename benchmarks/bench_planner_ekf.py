@@ -293,7 +293,7 @@ def ekf_validation(
         print(f"{'mission':>10} {'M':>2} {'km':>5} {'obj plan/rand':>14} "
               f"{'drift planned':>14} {'random':>12} {'odometry':>9} {'drift red.':>10} "
               f"{'mean-err red.':>13} {'1-update':>13}")  # fmt: skip
-        final_red, mean_red, worst_pred, radius_pred, radius_possible = [], [], [], [], []
+        final_red, mean_red, cells = [], [], []
         tracks: dict[tuple[str, int], CellTracks] = {}
         for name in MISSIONS:
             for m in (2, 3):
@@ -305,9 +305,7 @@ def ekf_validation(
                 mr = 1.0 - c["mean_planned"] / c["mean_random"]
                 final_red.append(fr)
                 mean_red.append(mr)
-                worst_pred.append(c["predicted_worst_trace"])
-                radius_pred.append(c["predicted_mean_radius"])
-                radius_possible.append(c["possible_mean_radius"])
+                cells.append(c)
                 record[f"{sigma},{name},{m}"] = c
                 print(
                     f"{name:>10} {m:>2} {c['length_m'] / 1e3:5.2f}"
@@ -315,16 +313,17 @@ def ekf_validation(
                     f" {c['final_planned']:6.2f}+-{c['final_planned_se']:.2f}"
                     f" {c['final_random']:6.2f}+-{c['final_random_se']:.2f}"
                     f" {c['final_none']:9.2f} {100 * fr:9.0f}% {100 * mr:12.0f}%"
-                    f" {100 * worst_pred[-1]:4.0f}/{100 * radius_pred[-1]:.0f}"
-                    f"/{100 * radius_possible[-1]:.0f}%",
+                    f" {100 * c['predicted_worst_trace']:4.0f}/{100 * c['predicted_mean_radius']:.0f}"
+                    f"/{100 * c['possible_mean_radius']:.0f}%",
                     flush=True,
                 )
+        average = {key: 100 * np.mean([c[key] for c in cells]) for key in cells[0]}
         print(
             f"  average reduction vs random: drift {100 * np.mean(final_red):.0f}%,"
             f" mean error {100 * np.mean(mean_red):.0f}% (target >= 50%; paper 59% drift);"
-            f" one-update model: worst trace {100 * np.mean(worst_pred):.0f}%,"
-            f" mean radius {100 * np.mean(radius_pred):.0f}%,"
-            f" at best {100 * np.mean(radius_possible):.0f}%"
+            f" one-update model: worst trace {average['predicted_worst_trace']:.0f}%,"
+            f" mean radius {average['predicted_mean_radius']:.0f}%,"
+            f" at best {average['possible_mean_radius']:.0f}%"
         )
         if plot is not None and sigma == sigmas[0]:
             title = (
