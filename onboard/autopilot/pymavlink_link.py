@@ -112,11 +112,14 @@ class PymavlinkLink(LinkBookkeeping):
         an autopilot heartbeat and start the threads.
 
         ``request_streams``: ask for telemetry (:meth:`request_streams`); ``None`` asks an
-        ArduPilot (which streams nothing unasked) and leaves a PX4's defaults alone.
-        Raises :class:`LinkError` if nothing is heard within ``timeout_s``.
+        ArduPilot (which streams nothing unasked) and leaves a PX4's defaults alone. A position
+        that does not stream yet does not fail the connection (a ``streams_pending`` event says
+        what is missing; :meth:`wait_ready` waits for it). Raises :class:`LinkError` if no
+        autopilot is heard within ``timeout_s``; the same link may then try again.
         """
         if self._conn is not None:
             raise LinkError("already connected")
+        self._reset()
         try:
             serial = serial_device(url)  # pymavlink would read "/dev/ttyACM0:921600" as UDP
             device, port = (url, {}) if serial is None else (serial[0], {"baud": serial[1]})
@@ -142,10 +145,30 @@ class PymavlinkLink(LinkBookkeeping):
         if request_streams is None:
             request_streams = self.flavour is Flavour.ARDUPILOT
         if request_streams:
-            res = self.request_streams()
+            # Only what every autopilot sends at once is waited for: ArduPilot accepts the
+            # LOCAL_POSITION_NED request at boot but streams it only once its EKF has a position
+            # (about 40 s after boot with GPS), and :meth:`wait_ready` waits for that.
+            res = self._request_streams(None, need_velocity=False)
             if not res.ok:
-                self.close()
-                raise LinkError(f"telemetry streams did not start: {res.detail}")
+                self._event("streams_pending", res.detail)
+
+    def _reset(self) -> None:
+        """Forget a previous connection: a daemon retries ``connect`` on the same link after a
+        failed attempt (no autopilot yet, or one still booting), and a stop flag or a target
+        left over from it made every later attempt fail at once."""
+        with self._cond:
+            self._stop.clear()
+            self._target = None
+            self._state = TelemetryState()
+            self._acks.clear()
+            self._params.clear()
+            self._other_systems.clear()
+            self._provisional_mode = None
+            self._link_lost = False
+            self._setpoint_stale = False
+            self._t_heartbeat_sent = -math.inf
+            self._stream = StreamState.IDLE
+            self._counts = dict.fromkeys(self._counts, 0)
 
     def _start_thread(self, target: Callable[[], None], name: str) -> None:
         t = threading.Thread(target=target, name=name, daemon=True)
@@ -372,6 +395,11 @@ class PymavlinkLink(LinkBookkeeping):
     def request_streams(self, rates_hz: Mapping[str, float] | None = None) -> ActionResult:
         """SET_MESSAGE_INTERVAL per message; REQUEST_DATA_STREAM for any refused or unanswered;
         then wait until attitude, local position (and SYS_STATUS, if requested) arrive."""
+        return self._request_streams(rates_hz, need_velocity=True)
+
+    def _request_streams(
+        self, rates_hz: Mapping[str, float] | None, need_velocity: bool
+    ) -> ActionResult:
         rates = dict(self.config.stream_rates_hz if rates_hz is None else rates_hz)
         t0 = self._clock()
         sends, refused, last = 0, [], None
@@ -398,12 +426,24 @@ class PymavlinkLink(LinkBookkeeping):
 
         def arrived(s: TelemetryState) -> bool:
             status = s.t_sys_status_s >= t0 or not need_status
-            return s.t_attitude_s >= t0 and s.t_velocity_s >= t0 and status
+            velocity = s.t_velocity_s >= t0 or not need_velocity
+            return s.t_attitude_s >= t0 and velocity and status
 
         got = self._wait_state(arrived, 5.0 * self.config.ack_timeout_s)
         detail = f"fallback REQUEST_DATA_STREAM for {refused}" if refused else ""
         if not got:
-            missing = "ATTITUDE/LOCAL_POSITION_NED/SYS_STATUS not received"
+            with self._cond:
+                st = self._state
+                missing = ", ".join(
+                    name
+                    for name, t, needed in (
+                        ("ATTITUDE", st.t_attitude_s, True),
+                        ("LOCAL_POSITION_NED", st.t_velocity_s, need_velocity),
+                        ("SYS_STATUS", st.t_sys_status_s, need_status),
+                    )
+                    if needed and t < t0
+                )
+            missing = f"{missing or 'telemetry'} not received"
             detail = (detail + "; " if detail else "") + missing
         return self._result("request_streams", Attempt(got, last, sends, detail), sends, t0)
 

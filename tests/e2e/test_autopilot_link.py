@@ -237,6 +237,31 @@ def test_ardupilot_strict_boot_guided_velocity_and_guid_timeout(make_sim):
         link.close()
 
 
+def test_a_link_whose_first_connect_failed_connects_later():
+    """Bug 1 of issue 22: a daemon started before its autopilot retries ``connect`` on the same
+    link object; ``close()`` after the failed attempt left the stop flag set, so every later
+    attempt ended at once (threads exited, nothing was heard) and the daemon never connected."""
+    base = free_port_base(1, span=60)
+    link = PymavlinkLink()
+    url = f"udpin:127.0.0.1:{base}"
+    server = None
+    try:
+        with pytest.raises(LinkError, match="no autopilot heartbeat"):
+            link.connect(url, timeout_s=0.5)  # nothing there yet
+        p, yaw = grid_layout(1)
+        cfg = SimConfig(p, yaw, client_base=base, gcs_port=None, speedup=SPEEDUP)
+        server = SimServer(cfg).start()
+        link.connect(url, timeout_s=5.0)
+        assert link.target_system == 1
+        wait_until(lambda: not link.telemetry().stale, 5.0, "fresh telemetry")
+        assert link.telemetry().counters.received > 0
+        assert link.arm().ok  # commands go out and their ACKs come back
+    finally:
+        link.close()
+        if server is not None:
+            server.stop()
+
+
 @pytest.mark.parametrize("backend", ["pymavlink", "mavsdk"])
 def test_a_link_talks_only_to_its_own_system_id(make_sim, backend):
     """On a shared network a daemon must not adopt another vehicle's autopilot: with system 1
