@@ -16,7 +16,6 @@ recorder is one). Garbage and bad CRCs are counted, never raised.
 
 from __future__ import annotations
 
-import math
 import select
 import socket
 import threading
@@ -239,6 +238,18 @@ class MavlinkListener:
         addr = self.addresses.get(sysid)
         if addr is None:
             return False
-        p = [float(x) for x in params] + [math.nan] * (7 - len(params))
-        msg = dialect.MAVLink_command_long_message(sysid, 1, command, confirmation, *p[:7])
+        p = command_params(params)
+        msg = dialect.MAVLink_command_long_message(sysid, 1, command, confirmation, *p)
         return self._send(msg, addr)
+
+
+def command_params(params: Sequence[float]) -> list[float]:
+    """The seven COMMAND_LONG parameters: ``params`` followed by zeros.
+
+    MAVLink's unused parameters are 0; NaN only where a command defines it ("unchanged", e.g.
+    NAV_TAKEOFF's yaw), and the caller then passes it explicitly. Padding with NaN killed
+    ArduCopter SITL: it compares ARM_DISARM's param 2 with the force-disarm code 21196, and the
+    NaN comparison raised the floating-point exception it aborts on (issue 22, bug 2)."""
+    if len(params) > 7:
+        raise ValueError(f"COMMAND_LONG has 7 parameters, got {len(params)}")
+    return [float(x) for x in params] + [0.0] * (7 - len(params))
