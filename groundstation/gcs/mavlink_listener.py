@@ -9,6 +9,11 @@ Endpoints are written like MAVProxy's:
   HEARTBEAT every second makes the vehicle stream to us). Useful when another program (a
   running ``gcs monitor``) already holds 14550.
 
+A GCS HEARTBEAT goes every second to the ``udpout`` endpoints and to every vehicle heard, and
+an ArduPilot, which streams nothing to a port until asked, is asked with SET_MESSAGE_INTERVAL
+for what the monitor shows (:data:`~groundstation.gcs.mavlink_state.GCS_STREAMS_HZ`), again
+whenever one of those streams stops (``request_streams=False`` turns that off).
+
 Every valid message is folded into a :class:`~groundstation.gcs.mavlink_state.MavlinkState`
 under a lock and passed to the ``on_message`` hooks with its raw bytes and receive time (the
 recorder is one). Garbage and bad CRCs are counted, never raised.
@@ -32,7 +37,9 @@ from groundstation.gcs.mavlink_state import (
     Ack,
     MavlinkState,
     SystemTelemetry,
+    streams_to_request,
 )
+from messages import mavlink as mv
 
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190
@@ -85,6 +92,7 @@ class MavlinkListener:
         self,
         endpoints: Sequence[MavlinkEndpoint],
         clock: Callable[[], float] = time.monotonic,
+        request_streams: bool = True,
     ) -> None:
         binds = [e for e in endpoints if e.kind == "udp"]
         if len(binds) > 1:
@@ -96,6 +104,9 @@ class MavlinkListener:
         self.outs = [(e.host, e.port) for e in endpoints if e.kind == "udpout"]
         self.addresses: dict[int, tuple[str, int]] = {}
         """Where each system's packets come from: commands to it go there."""
+        self.request_streams = request_streams
+        self.stream_requests: dict[int, float] = {}
+        """When each system was last asked for its streams (module docstring)."""
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
         try:
@@ -139,8 +150,10 @@ class MavlinkListener:
         next_beat = 0.0
         while not self._stop.is_set():
             now = self.clock()
-            if self.outs and now >= next_beat:
+            if now >= next_beat:
                 self._send_heartbeat()
+                if self.request_streams:
+                    self._ask_for_streams(now)
                 next_beat = now + HEARTBEAT_PERIOD_S
             try:
                 ready, _, _ = select.select([self.sock], [], [], 0.1)
@@ -226,9 +239,27 @@ class MavlinkListener:
         return True
 
     def _send_heartbeat(self) -> None:
+        """To the ``udpout`` endpoints and to every vehicle heard (its address)."""
         hb = dialect.MAVLink_heartbeat_message(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, 4, 3)
-        for addr in self.outs:
+        with self.lock:
+            heard = list(self.addresses.values())
+        for addr in dict.fromkeys([*self.outs, *heard]):
             self._send(hb, addr)
+
+    def _ask_for_streams(self, now_s: float) -> None:
+        """SET_MESSAGE_INTERVAL for every stream an ArduPilot does not send us (yet)."""
+        with self.lock:
+            due = {
+                sysid: streams_to_request(sys, now_s, self.stream_requests.get(sysid))
+                for sysid, sys in self.state.systems.items()
+            }
+        for sysid, streams in due.items():
+            if not streams:
+                continue
+            self.stream_requests[sysid] = now_s
+            for name, hz in streams:
+                msg_id = getattr(dialect, f"MAVLINK_MSG_ID_{name}")
+                self.send_command_long(sysid, mv.CMD_SET_MESSAGE_INTERVAL, (msg_id, 1e6 / hz))
 
     def send_command_long(
         self, sysid: int, command: int, params: Sequence[float], confirmation: int = 0

@@ -113,6 +113,8 @@ class SystemTelemetry:
     messages: int = 0
     loss: dict[int, LossWindow] = field(default_factory=dict)
     """Per source component."""
+    last_seen_s: dict[str, float] = field(default_factory=dict)
+    """Receive time of the newest message of each type (what is streaming, what is not)."""
 
     def loss_pct(self) -> float:
         """Loss over all components, weighted by their packet counts."""
@@ -158,6 +160,7 @@ class MavlinkState:
         if sys is None:  # telemetry before the first heartbeat also reveals a vehicle
             sys = self.systems[sysid] = SystemTelemetry(sysid, t_s, t_s)
         sys.last_message_s = t_s
+        sys.last_seen_s[kind] = t_s
         sys.messages += 1
         window = sys.loss.setdefault(int(msg.get_srcComponent()), LossWindow())
         window.add(int(msg.get_seq()))
@@ -223,6 +226,39 @@ def _command_ack(state: MavlinkState, sys: SystemTelemetry, msg: Any, t_s: float
     state.acks.append(Ack(sys.sysid, int(msg.command), int(msg.result), t_s))
     if len(state.acks) > state.max_acks:
         del state.acks[: len(state.acks) - state.max_acks]
+
+
+GCS_STREAMS_HZ: dict[str, float] = {
+    "GLOBAL_POSITION_INT": 5.0,
+    "SYS_STATUS": 2.0,
+    "EXTENDED_SYS_STATE": 2.0,
+    "BATTERY_STATUS": 0.5,
+}
+"""What the monitor shows (altitude and speed, battery, in the air) and the rate it asks an
+ArduPilot for. ArduCopter streams nothing on a port until asked (its ``SRn_`` rates default to
+0). The rates are the onboard daemons' own: the built-in simulator keeps one rate per message
+for all its clients (a real ArduPilot keeps them per port), and the ground station must not
+slow what a daemon asked for."""
+STREAM_STALE_S = 5.0
+"""A stream older than this (or never seen) is asked for again, at most this often: an
+autopilot that rebooted forgets what it was asked."""
+
+
+def streams_to_request(
+    sys: SystemTelemetry, now_s: float, last_request_s: float | None
+) -> list[tuple[str, float]]:
+    """The ``(message, rate Hz)`` of :data:`GCS_STREAMS_HZ` to ask system ``sys`` for now:
+    only an ArduPilot (PX4 streams to a ground station by default), only streams that are
+    missing or stale, and at most once per :data:`STREAM_STALE_S`."""
+    if sys.flavour != "ardupilot" or sys.last_heartbeat_s is None:
+        return []
+    if last_request_s is not None and now_s - last_request_s < STREAM_STALE_S:
+        return []
+    return [
+        (name, hz)
+        for name, hz in GCS_STREAMS_HZ.items()
+        if now_s - sys.last_seen_s.get(name, -math.inf) > STREAM_STALE_S
+    ]
 
 
 _HANDLERS = {
