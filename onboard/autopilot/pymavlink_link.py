@@ -186,8 +186,8 @@ class PymavlinkLink(LinkBookkeeping):
         if self._conn is not None:
             try:
                 self._conn.close()
-            except OSError:
-                pass
+            except Exception:  # pymavlink's TCP file after a failed reconnect: port is None
+                self._count("link_errors")
             self._conn = None
 
     # --- receiving ------------------------------------------------------------------------------
@@ -272,14 +272,19 @@ class PymavlinkLink(LinkBookkeeping):
 
     # --- sending --------------------------------------------------------------------------------
     def _send(self, fn: Callable[[Any], None]) -> bool:
-        """Run ``fn(mav)`` under the send lock; a socket error is counted, never raised."""
+        """Run ``fn(mav)`` under the send lock; any error is counted, never raised.
+
+        Not only socket errors: when a TCP autopilot goes away, pymavlink's reconnect (in the
+        receive thread and in this one at once) leaves its socket ``None`` halfway and raises
+        AttributeError, which killed the sender thread (no more setpoints or heartbeats, even
+        once the autopilot was back)."""
         conn = self._conn
         if conn is None:
             return False
         with self._send_lock:
             try:
                 fn(conn.mav)
-            except OSError:
+            except Exception:
                 self._count("link_errors")
                 return False
         return True

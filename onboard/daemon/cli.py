@@ -193,8 +193,18 @@ def agent(
                 "%d cut at the border, %d bearings",
                 st.frames, st.skipped, st.late, st.incomplete, st.cut, st.detections,
             )  # fmt: skip
-        link.close()
-        peers.close()
+        _close_all(link.close, peers.close)
+
+
+def _close_all(*closers: Any) -> None:
+    """Call every closer, in order, whatever the earlier ones raise (logged). A link that
+    raised on close (its TCP autopilot gone) once skipped the peers' close: Zenoh's port stayed
+    held and the daemon hung on SIGTERM."""
+    for close in closers:
+        try:
+            close()
+        except Exception:
+            logging.getLogger(__name__).exception("while closing %s", close)
 
 
 def _camera_pipelines(fleet: Any, camera: list[Path] | None, markers: Path | None) -> list[Any]:

@@ -311,3 +311,26 @@ def test_serial_urls():
     for bad in ("/dev/ttyACM0:fast", "serial:/dev/ttyACM0:-1", "/dev/ttyACM0:0"):
         with pytest.raises(ValueError, match="baud"):
             serial_device(bad)
+
+
+def test_errors_of_a_broken_connection_are_counted_not_raised(link):
+    """Issue 22, bug 4: a TCP autopilot that went away left pymavlink's socket ``None``; its
+    AttributeError killed the sender thread and made ``close()`` raise."""
+    v = FakeVehicle(link)
+    v.heartbeat()
+
+    class Broken:
+        def __getattr__(self, name: str) -> Any:
+            raise AttributeError("'NoneType' object has no attribute 'send'")
+
+    v.mav = Broken()
+    link._stream = StreamState.ACTIVE
+    link._tick(link._clock())  # heartbeat and setpoint: both fail, neither raises
+    assert link.telemetry().counters.link_errors == 2
+
+    def close() -> None:
+        raise AttributeError("'NoneType' object has no attribute 'close'")
+
+    v.close = close  # type: ignore[method-assign]
+    link.close()
+    assert link.telemetry().counters.link_errors == 3
