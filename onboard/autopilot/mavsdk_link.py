@@ -16,9 +16,12 @@ MAVSDK's blocking plugin calls (``Action``, ``Offboard``, ``Telemetry``) instead
   OFFBOARD. Stopping destroys the ``Offboard`` plugin (which ends MAVSDK's sender) without
   commanding a mode, so a pilot's mode choice is never overridden and PX4 fails safe on its own.
 
-What MAVSDK hides: the parser's bad-CRC and foreign-system counts (the counters stay 0), and
-stream requests (MAVSDK asks for what it needs itself; :meth:`request_streams` only waits for it).
-Tested against both simulated flavours: PX4 (OFFBOARD) and ArduPilot (GUIDED).
+What MAVSDK hides: the parser's bad-CRC and foreign-system counts (the counters stay 0).
+Streams: PX4 sends MAVSDK what it needs unasked, ArduPilot sends nothing until asked and MAVSDK
+does not ask, so for an ArduPilot :meth:`connect` and :meth:`request_streams` send
+SET_MESSAGE_INTERVAL for :attr:`LinkConfig.stream_rates_hz` through ``MavlinkDirect``, as the
+pymavlink backend does. Tested against both simulated flavours: PX4 (OFFBOARD) and ArduPilot
+(GUIDED), and ArduCopter SITL.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from onboard.autopilot.states import (
     CONTROL_MODE,
     Attempt,
     Saturated,
+    TelemetryState,
     climb_done,
     flavour_from_autopilot,
 )
@@ -139,6 +143,12 @@ class MavsdkLink(LinkBookkeeping):
 
         if self._mavsdk is not None:
             raise LinkError("already connected")
+        with self._cond:  # a retry after a failed attempt starts afresh (see PymavlinkLink)
+            self._stop.clear()
+            self._state = TelemetryState()
+            self._stream = StreamState.IDLE
+            self._system_id = None
+            self._stop_request = None
         try:
             murl = mavsdk_url(url)
         except ValueError as exc:
@@ -173,6 +183,10 @@ class MavsdkLink(LinkBookkeeping):
         self._event("connected", f"system {self._system_id} ({self.flavour.value})")  # type: ignore[union-attr]
         self._thread = threading.Thread(target=self._watchdog, name="mavsdk-watchdog", daemon=True)
         self._thread.start()
+        if self.flavour is Flavour.ARDUPILOT:
+            sent = self._set_intervals(self.config.stream_rates_hz)
+            if sent.detail:
+                self._event("streams_pending", sent.detail)
 
     def _subscribe(self) -> None:
         tel = self._plugins["telemetry"]
@@ -353,15 +367,56 @@ class MavsdkLink(LinkBookkeeping):
         return self._plugins["action"]
 
     def request_streams(self, rates_hz: Mapping[str, float] | None = None) -> ActionResult:
-        """MAVSDK requests what it needs itself: wait until attitude and velocity arrive."""
-        del rates_hz
+        """ArduPilot: SET_MESSAGE_INTERVAL per message (MAVSDK does not ask; module docstring);
+        PX4 streams by itself. Then wait until attitude and velocity arrive."""
+        self._require()
         t0 = self._clock()
+        sent = Attempt(True, None, 0)
+        if self.flavour is Flavour.ARDUPILOT:
+            sent = self._set_intervals(
+                self.config.stream_rates_hz if rates_hz is None else rates_hz
+            )
         got = self._wait_state(
             lambda s: s.t_attitude_s > -math.inf and s.t_velocity_s > -math.inf,
             5.0 * self.config.ack_timeout_s,
         )
-        detail = "" if got else "attitude/velocity not received"
-        return self._result("request_streams", Attempt(got, None, 0, detail), 0, t0)
+        detail = "; ".join(
+            x for x in (sent.detail, "" if got else "attitude/velocity not received") if x
+        )
+        return self._result(
+            "request_streams", Attempt(got, sent.result, sent.sends, detail), sent.sends, t0
+        )
+
+    def _set_intervals(self, rates_hz: Mapping[str, float]) -> Attempt:
+        """One SET_MESSAGE_INTERVAL command per stream (MavlinkDirect waits for each ACK);
+        ``ok`` when every one was accepted, ``detail`` names the others."""
+        from mavsdk.plugins.mavlink_direct import MavlinkDirectError, MavlinkMessage
+        from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+        direct = self._plugins["direct"]
+        refused: list[str] = []
+        result: int | None = None
+        for name, hz in rates_hz.items():
+            msg_id = getattr(dialect, f"MAVLINK_MSG_ID_{name}", None)
+            if msg_id is None or not (math.isfinite(hz) and hz > 0.0):
+                refused.append(f"{name} (bad stream)")
+                continue
+            fields = {
+                "target_system": self._system_id, "target_component": 1,
+                "command": mv.CMD_SET_MESSAGE_INTERVAL, "confirmation": 0,
+                "param1": float(msg_id), "param2": 1e6 / hz,
+                "param3": 0.0, "param4": 0.0, "param5": 0.0, "param6": 0.0, "param7": 0.0,
+            }  # fmt: skip
+            cmd = MavlinkMessage("COMMAND_LONG", 0, 0, self._system_id, 1, json.dumps(fields))
+            try:
+                ack = json.loads(direct.send_command(cmd).fields_json)
+                result = int(ack["result"])
+            except (MavlinkDirectError, ValueError, KeyError, TypeError):
+                result = None
+            if result != mv.RESULT_ACCEPTED:
+                refused.append(name)
+        detail = f"SET_MESSAGE_INTERVAL not accepted for {', '.join(refused)}" if refused else ""
+        return Attempt(not refused, result, len(rates_hz), detail)
 
     def wait_ready(self, timeout_s: float = 60.0) -> ActionResult:
         t0 = self._clock()

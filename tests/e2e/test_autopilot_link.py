@@ -349,6 +349,30 @@ def test_mavsdk_backend_flies_ardupilot_in_guided(make_sim):
         link.close()
 
 
+def test_mavsdk_backend_asks_an_ardupilot_for_its_streams(make_sim):
+    """Issue 22, bug 5: ArduPilot streams nothing until asked and MAVSDK does not ask, so the
+    MAVSDK backend never got attitude or position and ``wait_ready`` never passed."""
+    from onboard.autopilot.mavsdk_link import MavsdkLink
+
+    server, base = make_sim("ardupilot", transport="udp", strict=True, warmup_s=1.0)
+    link = MavsdkLink(LinkConfig(system_id=7))
+    try:
+        with pytest.raises(LinkError, match="only of system 1"):  # bug 1: then retry afresh
+            link.connect(f"udpin:127.0.0.1:{base}", timeout_s=1.0)
+        link.config = LinkConfig(system_id=1)
+        link.connect(f"udpin:127.0.0.1:{base}", timeout_s=5.0)
+        assert link._thread is not None and link._thread.is_alive()
+        ready = link.wait_ready(10.0)
+        assert ready.ok, ready
+        wait_until(lambda: not link.telemetry().stale, 5.0, "fresh attitude and velocity")
+        assert link.telemetry().landed_state == mv.LANDED_ON_GROUND
+        asked = server.autopilots[0].intervals_s
+        assert {"ATTITUDE", "LOCAL_POSITION_NED", "SYS_STATUS", "EXTENDED_SYS_STATE"} <= set(asked)
+        assert link.request_streams().ok
+    finally:
+        link.close()
+
+
 def test_pymavlink_link_over_a_serial_device_at_921600_baud():
     """A companion computer's UART: the link opens a real tty (a pseudo-terminal here) at the
     baud rate in its URL and hears the autopilot's heartbeats through pyserial."""
