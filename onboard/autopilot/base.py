@@ -293,7 +293,8 @@ def wrong_system_message(url: str, wanted: int, heard: Iterable[int], timeout_s:
     ids = ", ".join(str(i) for i in sorted(set(heard)))
     return (
         f"no heartbeat of autopilot system {wanted} on {url!r} within {timeout_s} s, only of "
-        f"system {ids}: set the autopilot's MAV_SYS_ID (PX4) or SYSID_THISMAV (ArduPilot) to "
+        f"system {ids}: set the autopilot's MAV_SYS_ID (PX4) or MAV_SYSID (ArduPilot 4.7; "
+        f"SYSID_THISMAV before) to "
         f"{wanted}, or the fleet's [mavlink] system_id_base / the agent's --system-id"
     )
 

@@ -54,7 +54,6 @@ from onboard.autopilot.base import (
 from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
     CONTROL_MODE,
-    DATA_STREAM_GROUP,
     HOLD_MODE,
     MAV_AUTOPILOT_INVALID,
     MAV_TYPE_ONBOARD_CONTROLLER,
@@ -65,6 +64,7 @@ from onboard.autopilot.states import (
     is_autopilot_heartbeat,
     mode_command_params,
     retryable,
+    stream_groups,
 )
 
 HEARTBEAT_PERIOD_S = 1.0
@@ -418,14 +418,10 @@ class PymavlinkLink(LinkBookkeeping):
             sends += n
             if last != mv.RESULT_ACCEPTED:
                 refused.append(name)
-        if refused:
+        groups, ungrouped = stream_groups(refused, rates)
+        if groups:
             ts, tc = self._require_target()
-            groups: dict[int, float] = {}
-            for name in refused:
-                g = DATA_STREAM_GROUP.get(name, 0)
-                groups[g] = max(groups.get(g, 0.0), rates[name])
-            for g, hz in groups.items():
-                rate = max(1, round(hz))
+            for g, rate in groups.items():
                 self._send(lambda mav, g=g, r=rate: mav.request_data_stream_send(ts, tc, g, r, 1))
         need_status = "SYS_STATUS" in rates
 
@@ -436,6 +432,8 @@ class PymavlinkLink(LinkBookkeeping):
 
         got = self._wait_state(arrived, 5.0 * self.config.ack_timeout_s)
         detail = f"fallback REQUEST_DATA_STREAM for {refused}" if refused else ""
+        if ungrouped:
+            detail += f" ({', '.join(ungrouped)}: in no stream group, not requested)"
         if not got:
             with self._cond:
                 st = self._state

@@ -44,7 +44,6 @@ LAND_MODE = {Flavour.PX4: "AUTO.LAND", Flavour.ARDUPILOT: "LAND"}
 DATA_STREAM_GROUP: dict[str, int] = {
     "SYS_STATUS": 2,
     "GPS_RAW_INT": 2,
-    "EXTENDED_SYS_STATE": 2,
     "BATTERY_STATUS": 12,
     "GLOBAL_POSITION_INT": 6,
     "LOCAL_POSITION_NED": 6,
@@ -52,7 +51,24 @@ DATA_STREAM_GROUP: dict[str, int] = {
     "SYSTEM_TIME": 12,
 }
 """Legacy ``REQUEST_DATA_STREAM`` group (MAV_DATA_STREAM) that carries each message on
-ArduPilot: EXTENDED_STATUS 2, POSITION 6, EXTRA1 10, EXTRA3 12."""
+ArduCopter (``GCS_MAVLink_Copter.cpp``): EXTENDED_STATUS 2, POSITION 6, EXTRA1 10, EXTRA3 12.
+EXTENDED_SYS_STATE is in no group (measured on ArduCopter 4.7 SITL): only SET_MESSAGE_INTERVAL
+starts it."""
+
+
+def stream_groups(names: list[str], rates_hz: dict[str, float]) -> tuple[dict[int, int], list[str]]:
+    """The REQUEST_DATA_STREAM fallback for messages whose SET_MESSAGE_INTERVAL was refused:
+    ``({group: rate Hz (integer, >= 1)}, messages no group carries)``. A message without a group
+    is never mapped to group 0, which is MAV_DATA_STREAM_ALL: every stream at that rate."""
+    groups: dict[int, float] = {}
+    ungrouped = []
+    for name in names:
+        g = DATA_STREAM_GROUP.get(name)
+        if g is None:
+            ungrouped.append(name)
+        else:
+            groups[g] = max(groups.get(g, 0.0), rates_hz[name])
+    return {g: max(1, round(hz)) for g, hz in groups.items()}, ungrouped
 
 
 # --- flavours and modes ---------------------------------------------------------------------------

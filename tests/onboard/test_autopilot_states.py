@@ -11,6 +11,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 from messages import mavlink as mv
 from onboard.autopilot.base import Flavour, LinkConfig, LinkCounters, StreamState
 from onboard.autopilot.states import (
+    DATA_STREAM_GROUP,
     Attempt,
     TelemetryState,
     backoff_s,
@@ -24,6 +25,7 @@ from onboard.autopilot.states import (
     retryable,
     saturate_setpoint,
     snapshot,
+    stream_groups,
 )
 
 
@@ -268,3 +270,14 @@ def test_climb_done_needs_in_air_and_the_altitude():
     st.altitude_m = 2.6
     assert not climb_done(st, 3.0)
     assert climb_done(st, 2.75)
+
+
+def test_stream_group_fallback_never_asks_for_every_stream():
+    """Issue 22, bug 6: EXTENDED_SYS_STATE was listed in EXTENDED_STATUS (2), which carries it on
+    no ArduCopter; a message without a group fell back to group 0, MAV_DATA_STREAM_ALL."""
+    rates = {"SYS_STATUS": 2.0, "GPS_RAW_INT": 5.0, "EXTENDED_SYS_STATE": 2.0, "ATTITUDE": 20.4}
+    groups, ungrouped = stream_groups(list(rates), rates)
+    assert groups == {2: 5, 10: 20}
+    assert ungrouped == ["EXTENDED_SYS_STATE"]
+    assert "EXTENDED_SYS_STATE" not in DATA_STREAM_GROUP
+    assert stream_groups(["BATTERY_STATUS"], {"BATTERY_STATUS": 0.5}) == ({12: 1}, [])
