@@ -32,11 +32,15 @@
 
     [mavlink]
     backend = "pymavlink"             # or "mavsdk"
-    url = "udpin:127.0.0.1:{port}"    # {port} = port_base + id, {id} = agent id; on a
-                                      # companion computer's UART: "serial:/dev/ttyAMA0:921600"
+    url = "udpin:127.0.0.1:{port}"    # {port} = port_base + port_stride * id, {id} = agent id;
+                                      # on a companion computer's UART:
+                                      # "serial:/dev/ttyAMA0:921600"
     port_base = 14540
+    port_stride = 1                   # ArduPilot SITL: url = "tcp:127.0.0.1:{port}",
+                                      # port_base = 5760, port_stride = 10 (instance i's SERIAL0)
     system_id_base = 1                # agent i talks only to autopilot system id base + i
-                                      # (MAV_SYS_ID / SYSID_THISMAV); others on the link are ignored
+                                      # (PX4 MAV_SYS_ID; ArduPilot MAV_SYSID, SYSID_THISMAV
+                                      # before 4.7); others on the link are ignored
 
     [zenoh]
     mode = "peer"                     # or "client" with a router in connect
@@ -121,6 +125,7 @@ class MavlinkSettings(msgspec.Struct, forbid_unknown_fields=True):
     backend: Literal["pymavlink", "mavsdk"] = "pymavlink"
     url: str = "udpin:127.0.0.1:{port}"
     port_base: int = 14540
+    port_stride: int = 1
     system_id_base: int = 1
 
 
@@ -184,8 +189,8 @@ class Fleet(msgspec.Struct, frozen=True):
         return self.formation.n
 
     def mavlink_url(self, agent_id: int) -> str:
-        m = self.config.mavlink
-        return m.url.format(port=m.port_base + agent_id, id=agent_id)
+        """``[mavlink] url`` with ``{port}`` = ``port_base + port_stride * id`` and ``{id}``."""
+        return mavlink_url(self.config.mavlink, agent_id)
 
     def system_id(self, agent_id: int) -> int:
         """The MAVLink system id of agent ``agent_id``'s autopilot."""
@@ -222,6 +227,17 @@ class Fleet(msgspec.Struct, frozen=True):
     def resolve(self, name: str) -> Path:
         """A file named in the fleet file, relative to the fleet file's directory."""
         return Path(self.path).parent / name
+
+
+def mavlink_url(m: MavlinkSettings, agent_id: int) -> str:
+    """The autopilot URL of agent ``agent_id`` (:meth:`Fleet.mavlink_url`); raises
+    ``ValueError`` for a placeholder other than ``{port}`` and ``{id}``."""
+    try:
+        return m.url.format(port=m.port_base + m.port_stride * agent_id, id=agent_id)
+    except (KeyError, IndexError, ValueError) as exc:
+        raise ValueError(
+            f"mavlink.url {m.url!r}: only {{port}} and {{id}} may be filled in ({exc!r})"
+        ) from None
 
 
 def load_fleet(path: str | Path) -> Fleet:
@@ -290,6 +306,14 @@ def load_fleet(path: str | Path) -> Fleet:
         formation = load_formation(path.parent / config.formation)
     except FormationError as exc:
         raise ConfigError(f"{path}: formation: {exc}") from None
+    if config.mavlink.port_stride < 1:
+        raise ConfigError(
+            f"{path}: mavlink.port_stride: must be >= 1, got {config.mavlink.port_stride}"
+        )
+    try:
+        mavlink_url(config.mavlink, 0)
+    except ValueError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
     base = config.mavlink.system_id_base
     if not (1 <= base and base + formation.n - 1 <= 255):
         raise ConfigError(
