@@ -9,7 +9,9 @@ takes MAVLink system ``i + 1``). :func:`render` turns a snapshot into a rich tab
 A row is red when its heartbeat is older than :data:`HEARTBEAT_LOST_S` or any alarm is active.
 Alarms are the agent's own (``peer_lost:<id>``, ``rigidity_low``, ``estimate_diverging``,
 ``failsafe``, ...) plus those the ground station raises itself: ``heartbeat_lost``,
-``agent_lost`` (liveliness token gone, or status older than :data:`AGENT_LOST_S`),
+``agent_lost`` (liveliness token gone, status older than :data:`AGENT_LOST_S`, or, once the
+monitor has listened on Zenoh that long, an autopilot heard without any agent: one that died
+before the monitor started),
 ``failsafe`` (HEARTBEAT system status CRITICAL or EMERGENCY) and ``battery_low``.
 """
 
@@ -60,9 +62,12 @@ def vehicle_row(
     agent: AgentTelemetry | None,
     now_s: float,
     config: MonitorConfig,
+    expect_agent: bool = False,
 ) -> dict[str, Any]:
     """One vehicle's row: MAVLink values when the GCS hears the autopilot, else what its agent
-    reports; estimator fields from the agent's latest status; alarms from both."""
+    reports; estimator fields from the agent's latest status; alarms from both.
+    ``expect_agent``: Zenoh has been listened to long enough that an agent that runs would have
+    been heard (its liveliness token or a status), so a vehicle without one is ``agent_lost``."""
     status = agent.status if agent is not None else None
     status_age = _age(now_s, agent.status_s) if agent is not None else None
     alarms: set[str] = set()
@@ -117,6 +122,8 @@ def vehicle_row(
     if battery is not None and battery < config.battery_low_pct:
         alarms.add("battery_low")
     row |= _agent_fields(agent, status, status_age, config, alarms)
+    if agent is None and expect_agent:
+        alarms.add("agent_lost")
     row["alarms"] = sorted(alarms)
     row["red"] = bool(alarms)
     return row
@@ -195,13 +202,21 @@ def snapshot(
     zen: ZenohState | None,
     now_s: float,
     config: MonitorConfig,
+    zenoh_listening_s: float | None = None,
 ) -> dict[str, Any]:
-    """The whole picture at ``now_s`` as a JSON-able dict (call it under the listeners' locks)."""
+    """The whole picture at ``now_s`` as a JSON-able dict (call it under the listeners' locks).
+    ``zenoh_listening_s``: how long Zenoh has been listened to (``None``: unknown); from
+    ``config.agent_lost_s`` on, a vehicle heard only on MAVLink is ``agent_lost``."""
     systems = mav.systems if mav is not None else {}
     agents = zen.agents if zen is not None else {}
     ids = set(agents) | {s - config.sysid_offset for s in systems}
+    expect = (
+        zen is not None
+        and zenoh_listening_s is not None
+        and zenoh_listening_s >= config.agent_lost_s
+    )
     rows = [
-        vehicle_row(i, systems.get(i + config.sysid_offset), agents.get(i), now_s, config)
+        vehicle_row(i, systems.get(i + config.sysid_offset), agents.get(i), now_s, config, expect)
         for i in sorted(ids)
     ]
     out: dict[str, Any] = {
@@ -278,7 +293,7 @@ def render(snap: dict[str, Any]) -> Any:
             _fmt(r["battery_pct"], ".0f"),
             _fmt(r["altitude_m"], ".1f"),
             _fmt(r["speed_m_s"], ".1f"),
-            _fmt(r.get("phase")),
+            _fmt(r.get("phase"), none="no agent" if "agent_lost" in r["alarms"] else "-"),
             " ".join(f"{j}:{d:.1f}" for j, d in list(dist.items())[:3]) or "-",
             _fmt(r.get("e_index"), ".2g"),
             _fmt(r.get("rigidity_eigenvalue"), ".2g"),
@@ -329,6 +344,7 @@ class Monitor:
         self.mavlink = mavlink
         self.zenoh = zenoh
         self.clock = clock
+        self.started_s = clock()
 
     def snapshot(self) -> dict[str, Any]:
         mav_lock = self.mavlink.lock if self.mavlink is not None else threading.Lock()
@@ -339,6 +355,7 @@ class Monitor:
                 self.zenoh.state if self.zenoh is not None else None,
                 self.clock(),
                 self.config,
+                self.clock() - self.started_s,
             )
 
     def live(self, refresh_hz: float = 4.0, stop: threading.Event | None = None) -> None:
