@@ -32,6 +32,21 @@ def sim(
     ] = False,
     strict: Annotated[bool, typer.Option(help="Behave like an autopilot fresh from boot.")] = False,
     warmup: Annotated[float, typer.Option(help="Strict mode: estimator warm-up (s).")] = 5.0,
+    ekf_warmup: Annotated[
+        float,
+        typer.Option(
+            help="ArduPilot: seconds after boot until the EKF has a position (LOCAL_POSITION_NED "
+            "streams, arming is allowed). ArduCopter SITL: about 40 with GPS, 4.5 with optical "
+            "flow."
+        ),
+    ] = 4.0,
+    boot_streams: Annotated[
+        bool,
+        typer.Option(
+            help="ArduPilot: stream telemetry from boot, for clients that never ask (a real "
+            "ArduCopter streams nothing until asked)."
+        ),
+    ] = False,
     signing_key: Annotated[
         Path | None, typer.Option(help="MAVLink 2 signing key file (hex, raw or passphrase).")
     ] = None,
@@ -120,6 +135,8 @@ def sim(
             lockstep=lockstep,
             strict=strict,
             warmup_s=warmup,
+            ekf_warmup_s=ekf_warmup,
+            boot_streams=boot_streams,
             signing_key=key,
             noise=SensorNoise(seed=seed),
         )
@@ -153,6 +170,13 @@ def sim(
         if lockstep:
             subscribers.append(_subscribe_steps(session, fleet, server))
 
+    # SIGINT and SIGTERM both stop the simulator, through handlers of our own: a process
+    # started in the background by a non-interactive shell inherits SIGINT *ignored*, and
+    # Python then never raises KeyboardInterrupt, so Ctrl-C or `kill -INT` did nothing.
+    # Installed before the ready line: a signal sent as soon as it appears must stop us cleanly.
+    stop = threading.Event()
+    stop_signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in stop_signals}
     for line in server.endpoints():
         typer.echo(line)
     if session is not None:
@@ -169,12 +193,6 @@ def sim(
     )
     sys.stdout.flush()
 
-    # SIGINT and SIGTERM both stop the simulator, through handlers of our own: a process
-    # started in the background by a non-interactive shell inherits SIGINT *ignored*, and
-    # Python then never raises KeyboardInterrupt, so Ctrl-C or `kill -INT` did nothing.
-    stop = threading.Event()
-    stop_signals = (signal.SIGINT, signal.SIGTERM)
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in stop_signals}
     server.start()
     try:
         while not stop.wait(0.5):

@@ -10,11 +10,13 @@ bound to ``bind_base + i`` and sends to ``client_base + i`` (the offboard/API po
 ``gcs_port`` (ground stations), and to every address a valid packet came from. In TCP mode
 (ArduPilot SITL style) vehicle ``i`` is a TCP server on ``tcp_base + 10 i``.
 
-``strict`` makes every vehicle behave like an autopilot fresh from boot: arming and
-OFFBOARD/GUIDED are refused with STATUSTEXT reasons until a simulated estimator warm-up of
-``warmup_s`` ends, a mode set during boot is reverted when it ends, an ArduPilot streams only
-what is requested, velocity targets are ignored while an ArduPilot takeoff climbs, and a
-vehicle armed but not flown for about 10 s disarms itself.
+The ArduPilot flavour behaves like ArduCopter 4.7 SITL (:mod:`sim.autopilot.ardupilot`): it
+streams only what is requested (``boot_streams`` streams from boot), has a position only
+``ekf_warmup_s`` after boot, spools up before a take-off climbs, and refuses NaN parameters
+the real one crashes on. ``strict`` makes every vehicle behave like an autopilot fresh from
+boot: arming (and PX4's OFFBOARD) is refused with STATUSTEXT reasons until a simulated
+warm-up of ``warmup_s`` ends, a mode set during boot is reverted when it ends, and a PX4 armed
+but not flown for about 10 s disarms itself (an ArduPilot always does, after DISARM_DELAY).
 """
 
 from __future__ import annotations
@@ -66,6 +68,10 @@ class SimConfig:
     lockstep: bool = False
     strict: bool = False
     warmup_s: float = 5.0
+    ekf_warmup_s: float = 4.0
+    """ArduPilot flavour: EKF warm-up (:class:`sim.autopilot.state.AutopilotOptions`)."""
+    boot_streams: bool = False
+    """ArduPilot flavour: stream from boot instead of only on request."""
     signing_key: bytes | None = None
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     noise: SensorNoise = field(default_factory=SensorNoise)
@@ -105,7 +111,12 @@ class SimServer:
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
         self.selector.register(self._wake_r, selectors.EVENT_READ, self._drain_wake)
-        options = AutopilotOptions(strict=config.strict, warmup_s=config.warmup_s)
+        options = AutopilotOptions(
+            strict=config.strict,
+            warmup_s=config.warmup_s,
+            ekf_warmup_s=config.ekf_warmup_s,
+            boot_streams=config.boot_streams,
+        )
         self.autopilots: list[Autopilot] = []
         self.links: list[UdpLink | TcpLink] = []
         self.hooks: list[TickHook] = []

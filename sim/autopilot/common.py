@@ -128,6 +128,21 @@ class Autopilot(Telemetry):
         """Whether the default streams run without being requested."""
         return True
 
+    def takeoff_step(self) -> None:
+        """Called every step while taking off (the flavour shapes the climb; default: the
+        world's position hold climbs to the target at once)."""
+
+    def landing_step(self) -> None:
+        """Called every step while landing (default: the world's hold descends)."""
+
+    def autodisarm_unflown(self) -> bool:
+        """Whether an armed vehicle that never took off disarms after
+        :meth:`autodisarm_unflown_s` (default: only in strict mode)."""
+        return self.options.strict
+
+    landing_disarm_text = "Disarmed by landing"
+    unflown_disarm_text = "Disarmed by auto preflight disarming"
+
     def arm_refusal(self) -> tuple[int, str] | None:
         """``None`` if arming is allowed now, else (result, reason)."""
         if not self.booted:
@@ -284,9 +299,13 @@ class Autopilot(Telemetry):
             if self.p_ned[2] <= self.takeoff_target_z + TAKEOFF_TOLERANCE_M:
                 self.phase = Phase.AIR
                 self.on_takeoff_complete()
+            else:
+                self.takeoff_step()
         elif self.phase == Phase.LANDING:
             if on_ground:
                 self.touchdown()
+            else:
+                self.landing_step()
         elif self.phase == Phase.RETURN:
             d_xy = float(np.linalg.norm(self.p_ned[:2] - self.return_target_ned[:2]))
             if d_xy < RETURN_TOLERANCE_M:
@@ -305,13 +324,13 @@ class Autopilot(Telemetry):
             self.ground_since_s = None
         if self.armed and self.phase == Phase.GROUND:
             if self.landed_t_s is not None and t_s - self.landed_t_s >= self.disarm_after_land_s():
-                self.disarm("Disarmed by landing")
+                self.disarm(self.landing_disarm_text)
             elif (
-                self.options.strict
+                self.autodisarm_unflown()
                 and not self.flew_since_arm
                 and t_s - self.armed_t_s >= self.autodisarm_unflown_s()
             ):
-                self.disarm("Disarmed by auto preflight disarming")
+                self.disarm(self.unflown_disarm_text)
         self.check_setpoint_loss()
 
     def touchdown(self) -> None:

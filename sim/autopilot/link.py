@@ -45,6 +45,9 @@ class LinkCounters:
     foreign_target: int = 0
     nan_setpoints: int = 0
     ignored_setpoints: int = 0
+    nan_commands: int = 0
+    """Commands refused for a NaN where the real autopilot would crash (ArduCopter aborts on a
+    NaN it converts to an integer or compares, e.g. ARM_DISARM's param 2)."""
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -38,7 +38,21 @@ class AutopilotOptions:
     """Behave like an autopilot fresh from boot (module docstring of sim.server)."""
     warmup_s: float = 5.0
     """Strict mode: simulated estimator warm-up after boot."""
+    ekf_warmup_s: float = 4.0
+    """ArduPilot: simulation seconds after boot until the EKF has a position: before it,
+    LOCAL_POSITION_NED and HOME_POSITION do not stream (their requests are accepted) and arming
+    is refused. ArduCopter 4.7 SITL takes about 40 s with GPS and 4.5 s with optical flow; the
+    default is the optical-flow figure, which keeps tests fast."""
+    boot_streams: bool = False
+    """ArduPilot: stream the default set from boot, as this flavour once did, for clients that
+    never ask. A real ArduCopter streams nothing but HEARTBEAT until asked."""
     home: Home = Home()
+
+    def __post_init__(self) -> None:
+        for name in ("warmup_s", "ekf_warmup_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
 
 
 class Phase(enum.Enum):

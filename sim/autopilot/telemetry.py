@@ -87,6 +87,15 @@ class Telemetry:
     def arm_refusal(self) -> tuple[int, str] | None:
         raise NotImplementedError
 
+    def stream_ready(self, name: str) -> bool:
+        """Whether message ``name`` can be sent now (a flavour withholds what its estimator
+        does not have yet; the stream keeps its schedule and starts by itself)."""
+        return True
+
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE of EXTENDED_SYS_STATE."""
+        return LANDED_STATE[self.phase]
+
     @property
     def altitude_m(self) -> float:
         raise NotImplementedError
@@ -120,11 +129,11 @@ class Telemetry:
             return
         if self.streams_on_boot():
             return  # accept and ignore: our default streams already cover what clients need
-        groups = {
-            2: ("SYS_STATUS", "GPS_RAW_INT", "EXTENDED_SYS_STATE", "BATTERY_STATUS"),
-            6: ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "HOME_POSITION"),
-            10: ("ATTITUDE", "ATTITUDE_QUATERNION"),
-            12: ("SYSTEM_TIME",),
+        groups = {  # ArduCopter's GCS_MAVLink_Copter.cpp; EXTENDED_SYS_STATE is in none
+            2: ("SYS_STATUS", "GPS_RAW_INT"),
+            6: ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"),
+            10: ("ATTITUDE",),
+            12: ("SYSTEM_TIME", "BATTERY_STATUS"),
         }
         chosen = [n for g in groups.values() for n in g] if msg.req_stream_id == 0 else []
         chosen += list(groups.get(int(msg.req_stream_id), ()))
@@ -145,13 +154,18 @@ class Telemetry:
             if t_s >= due:
                 nxt = due + self.intervals_s[name]
                 self.next_due_s[name] = nxt if nxt > t_s else t_s + self.intervals_s[name]
-                self.send(self.build(name))
+                if self.stream_ready(name):
+                    self.send(self.build(name))
         self._next_any_s = min(self.next_due_s.values(), default=math.inf)
 
     def send_once(self, msg_id: int) -> None:
         name = STREAM_NAMES.get(msg_id)
-        if name is not None and (
-            self.obs is not None or name in ("AUTOPILOT_VERSION", "HEARTBEAT", "HOME_POSITION")
+        if (
+            name is not None
+            and self.stream_ready(name)
+            and (
+                self.obs is not None or name in ("AUTOPILOT_VERSION", "HEARTBEAT", "HOME_POSITION")
+            )
         ):
             self.send(self.build(name))
 
@@ -240,7 +254,7 @@ class Telemetry:
         return max(0, int(100 - flown / 12.0))
 
     def _build_extended_sys_state(self) -> Any:
-        return self.dialect.MAVLink_extended_sys_state_message(0, LANDED_STATE[self.phase])
+        return self.dialect.MAVLink_extended_sys_state_message(0, self.landed_state())
 
     def _build_gps_raw_int(self) -> Any:
         o, i = self._row()

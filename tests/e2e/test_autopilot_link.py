@@ -182,26 +182,28 @@ def test_px4_offboard_flight_failsafe_pilot_takeover_and_bad_input(make_sim):
 
 
 def test_ardupilot_strict_boot_guided_velocity_and_guid_timeout(make_sim):
-    server, base = make_sim("ardupilot", strict=True, warmup_s=4.0)
-    link = PymavlinkLink(LinkConfig(mode_settle_s=0.5))
+    # init ("ArduPilot Ready") at 2 s, EKF position at 12 s of simulation time (twice real time)
+    server, base = make_sim("ardupilot", strict=True, warmup_s=2.0, ekf_warmup_s=12.0)
+    link = PymavlinkLink(LinkConfig(mode_settle_s=0.5, ack_timeout_s=0.3))
     try:
         link.connect(f"tcp:127.0.0.1:{base}", timeout_s=5.0, request_streams=False)
         assert link.flavour is not None and link.flavour.value == "ardupilot"
-        time.sleep(0.5)
+        time.sleep(0.3)
         t = link.telemetry()
         assert not t.stale_heartbeat and math.isinf(t.attitude_age_s)  # nothing but heartbeats
-        streams = link.request_streams()
-        assert streams.ok, streams
-        assert not link.telemetry().stale_attitude
-        assert not link.telemetry().ready  # the estimator is still warming up
 
         # a mode accepted during boot is reverted when boot ends, and re-applied
         assert link.set_mode("ALT_HOLD").ok
+        # the position streams only once the EKF has one: the request says what is missing
+        streams = link.request_streams()
+        assert not streams.ok and "LOCAL_POSITION_NED not received" in streams.detail, streams
+        assert not link.telemetry().stale_attitude
+        assert not link.telemetry().ready  # the estimator is still warming up
         # arming is refused until the warm-up ends; the link retries with backoff
         arm = link.arm()
         assert arm.ok, arm
         assert arm.attempts >= 2
-        assert any("PreArm" in r for r in arm.reasons)
+        assert "Arm: EKF attitude is bad" in arm.reasons
         ready = link.wait_ready(10.0)
         assert ready.ok and "re-applied ALT_HOLD" in ready.detail, ready
         assert link.telemetry().mode == "ALT_HOLD"

@@ -70,7 +70,7 @@ def test_mavproxy_params_and_mode(flavour, tmp_path):
     if flavour == "ardupilot":
         sim = start_sim("--vehicles", "1", "--flavour", "ardupilot", "--tcp-base", str(base))
         master, n_params, sysid_param, mode, new_mode = (
-            f"tcp:127.0.0.1:{base}", 10, "SYSID_THISMAV", "STABILIZE", "GUIDED",
+            f"tcp:127.0.0.1:{base}", 14, "SYSID_THISMAV", "STABILIZE", "GUIDED",
         )  # fmt: skip
     else:
         sim = start_sim("--vehicles", "1", "--port-base", str(base), "--gcs-port", str(base + 10))

@@ -1,4 +1,6 @@
-"""ArduCopter flavour: identity, modes, GUIDED takeoff, velocity frames, GUIDED timeout, LAND."""
+"""ArduCopter flavour: identity, modes, GUIDED takeoff, velocity frames, GUIDED timeout, LAND,
+and what it does like ArduCopter 4.7 SITL (streams on request, EKF warm-up, arming refusals,
+the take-off's spool-up and climb, the landing, NaN parameters)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ LAND = mv.COPTER_MODES["LAND"]
 
 
 def _guided_airborne(b, i=0, alt=5.0):
+    b.run(max(0.0, b.aps[i].options.ekf_warmup_s - b.t + 0.01))  # the EKF has a position
     assert b.command(i, mv.CMD_DO_SET_MODE, 1, GUIDED) == mv.RESULT_ACCEPTED
     assert b.command(i, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_ACCEPTED
     assert b.command(i, mv.CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, alt) == mv.RESULT_ACCEPTED
@@ -25,7 +28,6 @@ def _guided_airborne(b, i=0, alt=5.0):
 def test_identity_and_modes(bench_factory):
     b = bench_factory("ardupilot", n=1, transport="tcp")
     b.run(1.05)
-    assert len(b.sent(0, "ATTITUDE")) >= 20  # default streams (MAVSDK never requests them)
     hb = b.sent(0, "HEARTBEAT")[-1]
     assert hb.autopilot == mv.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.type == mv.MAV_TYPE_QUADROTOR
     assert hb.custom_mode == 0  # STABILIZE
@@ -43,7 +45,8 @@ def test_identity_and_modes(bench_factory):
 
 
 def test_takeoff_rules(bench_factory):
-    b = bench_factory("ardupilot", n=1)
+    b = bench_factory("ardupilot", n=1, ekf_warmup_s=0.0)
+    b.run(0.1)
     assert b.command(0, mv.CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5) == mv.RESULT_FAILED  # STABILIZE
     assert b.command(0, mv.CMD_DO_SET_MODE, 1, GUIDED) == mv.RESULT_ACCEPTED
     assert b.command(0, mv.CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5) == mv.RESULT_FAILED  # disarmed
@@ -56,6 +59,7 @@ def test_takeoff_rules(bench_factory):
     b.run(3.0)
     assert b.aps[0].altitude_m == pytest.approx(5.0, abs=0.05)
     assert b.command(0, mv.CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 8) == mv.RESULT_FAILED  # flying
+    assert b.texts(0) == []  # ArduCopter refuses take-offs without a word
 
 
 @pytest.mark.parametrize("frame", [mv.FRAME_BODY_NED, mv.FRAME_BODY_OFFSET_NED])
@@ -126,10 +130,13 @@ def test_land_and_disarm(bench_factory):
     _guided_airborne(b, alt=3.0)
     assert b.command(0, mv.CMD_NAV_LAND) == mv.RESULT_ACCEPTED
     assert ap.mode == "LAND"
-    b.run_until(lambda: ap.phase == Phase.GROUND, 10.0)
-    assert b.run_until(lambda: not ap.armed, 3.0) == pytest.approx(1.0, abs=0.05)
+    b.outbox[0].clear()
+    descent = b.run_until(lambda: ap.phase == Phase.GROUND, 10.0)
+    assert descent == pytest.approx(3.0 / 0.5 + 0.3, abs=0.2)  # LAND_SPEED 0.5 m/s, as SITL
+    assert b.run_until(lambda: not ap.armed, 3.0) == pytest.approx(2.0, abs=0.05)
+    assert "Disarming motors" in b.texts(0) and ap.mode == "LAND"
     assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_FAILED  # LAND not armable
-    assert any("not armable" in t for t in b.texts(0))
+    assert "Arm: Mode not armable" in b.texts(0)
 
 
 def test_params_are_cast(bench_factory):
@@ -144,3 +151,110 @@ def test_params_are_cast(bench_factory):
     b.deliver(1, b.dialect.MAVLink_param_set_message(2, 1, b"DISARM_DELAY", 2.5, 6))  # not an int
     echo = b.sent(1, "PARAM_VALUE")[0]
     assert echo.param_value == 10.0  # unchanged value is echoed
+
+
+def test_streams_nothing_until_asked_and_a_position_only_after_the_ekf_warmup(bench_factory):
+    """ArduCopter 4.7 SITL: HEARTBEAT only until asked; the LOCAL_POSITION_NED request is
+    accepted at once but the stream starts only once the EKF has a position."""
+    b = bench_factory("ardupilot", n=1, ekf_warmup_s=3.0)
+    b.run(1.0)
+    assert {m.get_type() for m in b.outbox[0]} == {"HEARTBEAT"}
+    for msg_id in (30, 32, 245):  # ATTITUDE, LOCAL_POSITION_NED, EXTENDED_SYS_STATE
+        assert b.command(0, mv.CMD_SET_MESSAGE_INTERVAL, msg_id, 100_000) == mv.RESULT_ACCEPTED
+    b.outbox[0].clear()
+    b.run(1.0)
+    assert 9 <= len(b.sent(0, "ATTITUDE")) <= 11 and len(b.sent(0, "EXTENDED_SYS_STATE")) >= 9
+    assert b.sent(0, "LOCAL_POSITION_NED") == []
+    assert b.command(0, mv.CMD_REQUEST_MESSAGE, 242) == mv.RESULT_ACCEPTED
+    assert b.sent(0, "HOME_POSITION") == []  # no origin yet
+    first = b.run_until(lambda: bool(b.sent(0, "LOCAL_POSITION_NED")), 3.0)
+    assert b.t == pytest.approx(3.0, abs=0.11) and first > 0.9
+    b.deliver(0, b.dialect.MAVLink_request_data_stream_message(1, 1, 2, 4, 1))  # EXTENDED_STATUS
+    b.outbox[0].clear()
+    b.run(1.0)
+    assert 3 <= len(b.sent(0, "SYS_STATUS")) <= 5  # the group carries SYS_STATUS ...
+    kept = bench_factory("ardupilot", n=1, boot_streams=True)  # the old behaviour, on request
+    kept.run(1.05)
+    assert len(kept.sent(0, "ATTITUDE")) >= 20
+
+
+def test_any_mode_while_disarmed_refusals_at_arming(bench_factory):
+    """ArduCopter accepts any mode disarmed and refuses at arming, with its own texts."""
+    b = bench_factory("ardupilot", n=1, ekf_warmup_s=2.0)
+    ap = b.aps[0]
+    b.run(0.5)
+    assert b.command(0, mv.CMD_DO_SET_MODE, 1, GUIDED) == mv.RESULT_ACCEPTED  # no position yet
+    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_FAILED
+    assert b.texts(0) == ["Arm: Need Position Estimate"]
+    assert b.command(0, mv.CMD_DO_SET_MODE, 1, mv.COPTER_MODES["STABILIZE"]) == 0
+    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_FAILED
+    assert b.texts(0)[-1] == "Arm: EKF attitude is bad"
+    b.deliver(0, b.dialect.MAVLink_command_long_message(1, 1, 511, 0, 1, 500_000, 0, 0, 0, 0, 0))
+    b.outbox[0].clear()
+    b.run(0.6)
+    status = b.sent(0, "SYS_STATUS")[-1]
+    assert not status.onboard_control_sensors_health & mv.SENSOR_PREARM_CHECK
+    b.run(1.0)  # past the EKF warm-up
+    assert b.sent(0, "SYS_STATUS")[-1].onboard_control_sensors_health & mv.SENSOR_PREARM_CHECK
+    assert b.command(0, mv.CMD_DO_SET_MODE, 1, GUIDED) == mv.RESULT_ACCEPTED
+    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_ACCEPTED
+    b.outbox[0].clear()
+    assert b.run_until(lambda: not ap.armed, 11.0) == pytest.approx(10.0, abs=0.05)  # DISARM_DELAY
+    assert b.texts(0) == ["Disarming motors"]
+
+
+def test_takeoff_spools_up_then_climbs_like_sitl(bench_factory):
+    """Measured on ArduCopter 4.7 SITL, 5 m take-off: lift-off (5 cm) 1.7 s after the command,
+    1.46 m at 3.0 s, 3.19 m at 4.0 s, 4.37 m at 5.0 s, 5 m at 6.3-6.5 s; landed state
+    ON_GROUND for 1.3 s, then TAKEOFF, IN_AIR at the target. Velocity targets are ignored
+    until then."""
+    b = bench_factory("ardupilot", n=1, ekf_warmup_s=0.0)
+    ap = b.aps[0]
+    b.run(0.1)
+    assert b.command(0, mv.CMD_DO_SET_MODE, 1, GUIDED) == mv.RESULT_ACCEPTED
+    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_ACCEPTED
+    assert b.command(0, mv.CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5.0) == mv.RESULT_ACCEPTED
+    t0 = b.t
+    heights: dict[float, float] = {}
+    states: dict[float, int] = {}
+    moved: list[float] = []
+
+    def sample() -> None:
+        k = round(b.t - t0, 2)
+        heights[k], states[k] = ap.altitude_m, ap.landed_state()
+        if states[k] != mv.LANDED_IN_AIR:
+            moved.append(abs(float(ap.p_ned[0])))
+        b.setpoint(0, (2.0, 0.0, 0.0))  # ignored while the take-off climbs
+
+    b.run(7.0, every=0.1, action=sample)
+    lift_off = min(k for k, h in heights.items() if h > 0.05)
+    assert lift_off == pytest.approx(1.7, abs=0.15)
+    for k, sitl in ((3.0, 1.46), (4.0, 3.19), (5.0, 4.37)):
+        assert heights[k] == pytest.approx(sitl, abs=0.35), (k, heights[k])
+    reached = min(k for k, h in heights.items() if h > 4.85)
+    assert 5.4 <= reached <= 6.2  # SITL: 5.75 s (IN_AIR at 6.1 s)
+    assert states[1.0] == mv.LANDED_ON_GROUND and states[2.0] == mv.LANDED_TAKEOFF
+    assert states[6.9] == mv.LANDED_IN_AIR and ap.mode == "GUIDED"
+    assert max(moved) < 1e-9 and ap.counters.ignored_setpoints >= 50
+
+
+def test_nan_parameters_that_crash_arducopter_are_refused_and_counted(bench_factory):
+    """ArduCopter 4.7 SITL aborts (SIGFPE) on these NaN parameters; here they are refused."""
+    b = bench_factory("ardupilot", n=1, ekf_warmup_s=0.0)
+    ap = b.aps[0]
+    b.run(0.1)
+    nan = math.nan
+    for command, params in (
+        (mv.CMD_COMPONENT_ARM_DISARM, (1, nan)),  # what the GCS once sent (issue 22, bug 2)
+        (mv.CMD_COMPONENT_ARM_DISARM, (nan,)),
+        (mv.CMD_DO_SET_MODE, (1, nan)),
+        (mv.CMD_SET_MESSAGE_INTERVAL, (30, nan)),
+        (mv.CMD_REQUEST_MESSAGE, (nan,)),
+    ):
+        assert b.command(0, command, *params) == mv.RESULT_DENIED
+        assert "NaN" in b.texts(0)[-1]
+    assert ap.counters.nan_commands == 5 and not ap.armed and ap.mode == "STABILIZE"
+    # NaN where ArduCopter does not crash keeps its own answer
+    assert b.command(0, mv.CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, nan) == mv.RESULT_FAILED
+    assert b.command(0, mv.CMD_NAV_LAND, 0, 0, 0, nan) == mv.RESULT_ACCEPTED
+    assert ap.counters.nan_commands == 5

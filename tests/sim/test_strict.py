@@ -72,20 +72,25 @@ def test_ardupilot_streams_only_on_request(bench_factory):
 
 
 def test_ardupilot_boot_refusals_and_revert(bench_factory):
-    b = bench_factory("ardupilot", n=1, strict=True, warmup_s=1.0)
+    """ArduCopter 4.7 SITL: a mode set before "ArduPilot Ready" is accepted, then reverted to
+    STABILIZE when the init ends; arming is refused until the EKF has a position."""
+    b = bench_factory("ardupilot", n=1, strict=True, warmup_s=1.0, ekf_warmup_s=2.0)
     ap = b.aps[0]
-    assert b.command(0, mv.CMD_DO_SET_MODE, 1, mv.COPTER_MODES["GUIDED"]) == mv.RESULT_FAILED
-    assert any("requires position" in t for t in b.texts(0))
-    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_FAILED
-    assert any(t.startswith("PreArm") for t in b.texts(0))
-    assert b.command(0, mv.CMD_DO_SET_MODE, 1, mv.COPTER_MODES["ALT_HOLD"]) == mv.RESULT_ACCEPTED
-    b.run(1.1)
-    assert ap.mode == "STABILIZE"
     assert b.command(0, mv.CMD_DO_SET_MODE, 1, mv.COPTER_MODES["GUIDED"]) == mv.RESULT_ACCEPTED
+    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_FAILED
+    assert b.texts(0) == ["Arm: AHRS: EKF3 still initialising"]
+    b.run(1.1)
+    assert ap.mode == "STABILIZE" and "ArduPilot Ready" in b.texts(0)
+    assert b.command(0, mv.CMD_DO_SET_MODE, 1, mv.COPTER_MODES["GUIDED"]) == mv.RESULT_ACCEPTED
+    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_FAILED
+    assert b.texts(0)[-1] == "Arm: Need Position Estimate"
+    b.run(1.0)
+    assert b.command(0, mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_ACCEPTED
+    assert ap.mode == "GUIDED"
 
 
 def test_ardupilot_ignores_velocity_while_takeoff_climbs(bench_factory):
-    b = bench_factory("ardupilot", n=1, strict=True, warmup_s=0.1)
+    b = bench_factory("ardupilot", n=1, strict=True, warmup_s=0.1, ekf_warmup_s=0.1)
     ap = b.aps[0]
     b.run(0.2)
     assert b.command(0, mv.CMD_DO_SET_MODE, 1, mv.COPTER_MODES["GUIDED"]) == mv.RESULT_ACCEPTED
