@@ -63,6 +63,12 @@ barrier must not push the team away from the formation it is told to hold (a rin
 mixed heights is nearly flat: 0.088)."""
 LAMBDA_MIN_FRACTION = 0.1
 """``lambda_min`` (where the barrier grows without bound) as a fraction of ``lambda_safe``."""
+SITL_START_S = 90.0
+"""ArduCopter SITL: simulation seconds from the first truth sample to the mission start (every
+vehicle flying) before the demo gives up. SITL refuses to arm for about 24 s after boot
+("Arm: Gyros inconsistent"), then the take-off to 5 m takes about 6.5 s."""
+SITL_LANDING_TIMEOUT_S = 60.0
+"""ArduCopter lands at 0.5 m/s below 10 m (and disarms 2 s after touchdown)."""
 LANDED_HEIGHT_M = 0.2
 SCALE_TOLERANCE = 0.02
 """Relative distance error below which an SfM edge counts as having the metric scale."""
@@ -149,11 +155,14 @@ def write_demo_files(
     mode: str,
     loss: float = 0.0,
     rigidity: bool = True,
+    sitl_instance: int | None = None,
 ) -> Path:
     """Formation, start layout and fleet files for the simulator and the daemons; ``loss`` is
     the fraction of peer messages every daemon drops on purpose (``zenoh.inject_loss``),
     ``rigidity`` turns paper 003's rigidity maintenance on (``[rigidity] maintenance``; never
-    for fewer than 4 vehicles, see ``onboard.daemon.config.MIN_MAINTENANCE_AGENTS``)."""
+    for fewer than 4 vehicles, see ``onboard.daemon.config.MIN_MAINTENANCE_AGENTS``).
+    ``sitl_instance``: the daemons dial ArduCopter SITL instances ``sitl_instance + id`` (TCP
+    SERIAL0, 10 ports apart) instead of the simulator's UDP ports."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "formation.toml").write_text(
         _formation_toml(plan.p_ned, plan.yaw_rad, plan.edges, "demo")
@@ -175,7 +184,15 @@ def write_demo_files(
                 "takeoff_alt_m = 5.0",
                 "",
                 "[mavlink]",
-                f"port_base = {ports.mavlink}",
+                *(
+                    [f"port_base = {ports.mavlink}"]
+                    if sitl_instance is None
+                    else [
+                        'url = "tcp:127.0.0.1:{port}"',
+                        f"port_base = {5760 + 10 * sitl_instance}",
+                        "port_stride = 10",
+                    ]
+                ),
                 "",
                 "[zenoh]",
                 f"port_base = {ports.zenoh}",
@@ -444,8 +461,18 @@ def run_demo(
     render_rate_hz: float = 10.0,
     loss: float = 0.0,
     rigidity: bool = True,
+    autopilot: str = "builtin",
+    sitl: Path | None = None,
+    sitl_sensors: str = "flow",
+    sitl_params: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Run the whole mission (module docstring) and return its summary.
+
+    ``autopilot = "ardupilot-sitl"``: real ArduCopter SITL processes instead of the simulated
+    autopilots (``bearingflock sim --autopilot ardupilot-sitl``; binary ``sitl`` or
+    ``$BEARINGFLOCK_SITL``), the daemons in GUIDED. Their boot takes tens of simulated seconds
+    (SITL refuses to arm for ~24 s), so ``duration_s`` then counts from the mission start
+    (every vehicle flying), within :data:`SITL_START_S` of the first truth sample.
 
     ``bearings = "camera"``: the simulator renders every vehicle's camera rig (``camera_files``,
     camera_id = order) with the markers of ``markers_file`` at ``render_rate_hz`` of simulation
@@ -459,10 +486,24 @@ def run_demo(
     ports = DemoPorts(zenoh=base, mavlink=base + 10 + vehicles, gcs=base + 9)
     plan = plan_formation(vehicles, seed)
     fleet = f"demo{base}"
+    sitl_args: list[str] = []
+    instance = None
+    if autopilot == "ardupilot-sitl":
+        if bearings != "sim":
+            raise ValueError("ArduCopter SITL flies with the virtual camera only (--bearings sim)")
+        from sim.sitl import find_sitl, free_instances
+
+        binary = find_sitl(sitl)  # a missing binary is a one-line error before anything starts
+        instance = free_instances(vehicles)
+        sitl_args = ["--autopilot", "ardupilot-sitl", "--sitl", str(binary),
+                     "--sitl-sensors", sitl_sensors, "--sitl-instance", str(instance),
+                     *(a for p in sitl_params for a in ("--sitl-param", p))]  # fmt: skip
+    elif autopilot != "builtin":
+        raise ValueError(f"unknown autopilot {autopilot!r}: builtin or ardupilot-sitl")
     # the rigidity layer's sensing model is one camera cone; rendered rigs (a forward camera or
     # a ring of them) are not modelled yet, so camera bearings fly without the maintenance
     rigidity = rigidity and bearings == "sim"
-    fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity)
+    fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity, instance)
     if bearings == "camera":
         stale_s = max(0.5, CAMERA_STALE_FRAMES / render_rate_hz)
         with fleet_path.open("a") as f:
@@ -481,8 +522,9 @@ def run_demo(
     try:
         procs.start(
             "sim",
-            [*simulator_args(vehicles, flavour, out, ports, fleet, seed, speedup), *camera_args],
-        )
+            [*simulator_args(vehicles, flavour, out, ports, fleet, seed, speedup), *camera_args,
+             *sitl_args],
+        )  # fmt: skip
         for i in range(vehicles):
             procs.start(
                 f"agent{i}",
@@ -506,7 +548,9 @@ def run_demo(
             return time.monotonic() + STARTUP_WALL_S + WALL_SLACK * sim_s / speedup
 
         t0_sim: float | None = None
-        deadline = wall_deadline(duration_s)
+        first_sim: float | None = None
+        from_start = instance is not None  # SITL: the mission counts from the mission start
+        deadline = wall_deadline(duration_s + (SITL_START_S if from_start else 0.0))
         phase = "mission"
         while time.monotonic() < deadline:
             time.sleep(0.1)
@@ -514,21 +558,28 @@ def run_demo(
             if dead := procs.dead():
                 raise RuntimeError(f"process(es) died: {', '.join(dead)} (logs in {out})")
             now = sim_now()
-            t0_sim = now if t0_sim is None else t0_sim
+            first_sim = now if first_sim is None else first_sim
+            flying = bool(evaluator.series.flying) and evaluator.series.flying[-1]
+            if t0_sim is None and now is not None and (flying or not from_start):
+                t0_sim = now
             elapsed = 0.0 if now is None or t0_sim is None else now - t0_sim
             if on_tick is not None:
                 on_tick(evaluator, elapsed, phase)
             if elapsed >= duration_s:
                 break
+            if t0_sim is None and now is not None and first_sim is not None:
+                if now - first_sim > SITL_START_S:
+                    break  # never started: reported below
         summary = summarize(evaluator, vehicles)
         evaluator.command_all("land")
         phase = "landing"
         land_from = sim_now()
-        deadline = wall_deadline(LANDING_TIMEOUT_S)
+        landing_s = SITL_LANDING_TIMEOUT_S if from_start else LANDING_TIMEOUT_S
+        deadline = wall_deadline(landing_s)
         while time.monotonic() < deadline and not evaluator.all_landed():
             time.sleep(0.2)
             now = sim_now()
-            if land_from is not None and now is not None and now - land_from >= LANDING_TIMEOUT_S:
+            if land_from is not None and now is not None and now - land_from >= landing_s:
                 break
             if on_tick is not None:
                 on_tick(evaluator, duration_s, phase)
@@ -537,7 +588,8 @@ def run_demo(
             phases = ", ".join(f"{k}: {st.phase}" for k, st in sorted(evaluator.snapshot().items()))
             raise RuntimeError(
                 f"the mission never started: the vehicles were not all flying within "
-                f"{duration_s:g} s of simulation (daemon phases: {phases or 'none reported'}); "
+                f"{SITL_START_S if from_start else duration_s:g} s of simulation (daemon "
+                f"phases: {phases or 'none reported'}); "
                 f"agent*.log and sim.log in {out} say why"
             )
         return summary

@@ -199,6 +199,23 @@ def demo(
             "rigidity eigenvalue above its safe level, and avoid collisions (sim bearings only)."
         ),
     ] = True,
+    autopilot: Annotated[
+        str,
+        typer.Option(
+            help="builtin (the simulator's autopilots) or ardupilot-sitl (real ArduCopter SITL, "
+            "one process per vehicle; binary from --sitl or $BEARINGFLOCK_SITL)."
+        ),
+    ] = "builtin",
+    sitl: Annotated[
+        Path | None, typer.Option(help="ardupilot-sitl: the arducopter SITL binary.")
+    ] = None,
+    sitl_sensors: Annotated[
+        str, typer.Option(help="ardupilot-sitl: flow (optical flow, no GPS) or gps.")
+    ] = "flow",
+    sitl_param: Annotated[
+        list[str] | None,
+        typer.Option(help="ardupilot-sitl: NAME=VALUE parameter for every vehicle, repeatable."),
+    ] = None,
     headless: Annotated[
         bool,
         typer.Option(
@@ -224,6 +241,25 @@ def demo(
     if flavour not in ("px4", "ardupilot"):
         typer.echo("error: --flavour must be px4 or ardupilot", err=True)
         raise typer.Exit(2)
+    if autopilot not in ("builtin", "ardupilot-sitl"):
+        typer.echo("error: --autopilot must be builtin or ardupilot-sitl", err=True)
+        raise typer.Exit(2)
+    if autopilot == "ardupilot-sitl":
+        from sim.sitl import SENSOR_DEFAULTS, SitlError, find_sitl
+
+        if headless or bearings != "sim" or sitl_sensors not in SENSOR_DEFAULTS:
+            typer.echo(
+                "error: --autopilot ardupilot-sitl flies processes with the virtual camera "
+                f"(not --headless, --bearings sim) and --sitl-sensors {'|'.join(SENSOR_DEFAULTS)}",
+                err=True,
+            )
+            raise typer.Exit(2)
+        try:
+            find_sitl(sitl)
+        except SitlError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        flavour = "ardupilot"
     if bearings not in ("sim", "camera"):
         typer.echo("error: --bearings must be sim or camera", err=True)
         raise typer.Exit(2)
@@ -288,7 +324,8 @@ def demo(
             summary = run_demo(
                 vehicles, flavour, duration, out_dir, seed, mode, on_tick, bearings=bearings,
                 camera_files=camera_files, markers_file=markers_file, speedup=speed,
-                render_rate_hz=render_rate, loss=loss, rigidity=rigidity,
+                render_rate_hz=render_rate, loss=loss, rigidity=rigidity, autopilot=autopilot,
+                sitl=sitl, sitl_sensors=sitl_sensors, sitl_params=tuple(sitl_param or ()),
             )  # fmt: skip
     except KeyboardInterrupt:
         console.print("[yellow]interrupted: every process was stopped[/yellow]")
@@ -297,6 +334,7 @@ def demo(
         console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(1) from None
     summary["bearings"] = bearings
+    summary["autopilot"] = autopilot
     summary["speedup"] = speed
     summary["out"] = str(out_dir)
     summary["plots"] = [str(p) for p in plot_demo(out_dir)]

@@ -97,8 +97,54 @@ def sim(
     render_encoding: Annotated[str, typer.Option(help="jpeg or png.")] = "jpeg",
     render_quality: Annotated[int, typer.Option(help="JPEG quality (1-100).")] = 90,
     quiet: Annotated[bool, typer.Option(help="No live status line.")] = False,
+    autopilot: Annotated[
+        str,
+        typer.Option(
+            help="builtin (the simulated autopilots) or ardupilot-sitl (one real ArduCopter "
+            "SITL process per vehicle; docs/sim.md)."
+        ),
+    ] = "builtin",
+    sitl: Annotated[
+        Path | None,
+        typer.Option(help="ardupilot-sitl: the arducopter binary (default $BEARINGFLOCK_SITL)."),
+    ] = None,
+    sitl_sensors: Annotated[
+        str, typer.Option(help="ardupilot-sitl: flow (optical flow, no GPS) or gps.")
+    ] = "flow",
+    sitl_defaults: Annotated[
+        str | None,
+        typer.Option(
+            help="ardupilot-sitl: parameter files, comma-separated (default: the sensors' files "
+            "next to the binary)."
+        ),
+    ] = None,
+    sitl_instance: Annotated[
+        int | None,
+        typer.Option(
+            min=0, help="ardupilot-sitl: instance of vehicle 0 (-I; default: the first free)."
+        ),
+    ] = None,
+    sitl_dir: Annotated[
+        Path | None,
+        typer.Option(help="ardupilot-sitl: keep the instances' working directories here."),
+    ] = None,
+    sitl_stamps: Annotated[
+        str,
+        typer.Option(
+            help="ardupilot-sitl: stamp camera frames and truth on each instance's own clock "
+            "(own) or on the fleet's (common)."
+        ),
+    ] = "own",
+    sitl_param: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="ardupilot-sitl: NAME=VALUE set on every instance, repeatable (e.g. "
+            "ARMING_CHECK=786374 arms without waiting for SITL's IMUs to agree, ~20 s)."
+        ),
+    ] = None,
 ) -> None:
-    """Run a multi-vehicle kinematic MAVLink simulator (PX4 or ArduPilot flavour)."""
+    """Run a multi-vehicle kinematic MAVLink simulator (PX4 or ArduPilot flavour), or real
+    ArduCopter SITL with the same camera, truth and clock (``--autopilot ardupilot-sitl``)."""
     # heavy imports here, so that ``bearingflock --help`` stays instant
     from sim.autopilot.signing import load_key
     from sim.camera import CameraConfig, CameraPublisher
@@ -112,6 +158,10 @@ def sim(
         raise typer.BadParameter("--render-camera needs --markers and --zenoh (images go to Zenoh)")
     if render_encoding not in ("jpeg", "png"):
         raise typer.BadParameter("--render-encoding must be jpeg or png")
+    if autopilot not in ("builtin", "ardupilot-sitl"):
+        raise typer.BadParameter("--autopilot must be builtin or ardupilot-sitl")
+    if sitl_stamps not in ("own", "common"):
+        raise typer.BadParameter("--sitl-stamps must be own or common")
     try:
         ids: list[int] | None = None
         if layout == "grid":
@@ -121,6 +171,40 @@ def sim(
         else:
             p, yaw, ids = formation_layout(layout)
             p[:, 2] = 0.0
+    except (ValueError, OSError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if autopilot == "ardupilot-sitl":
+        unsupported = [
+            name
+            for name, given in (
+                ("--lockstep", lockstep), ("--strict", strict), ("--signing-key", signing_key),
+                ("--render-camera", render_camera),
+            )
+            if given
+        ]  # fmt: skip
+        if unsupported:
+            raise typer.BadParameter(
+                f"{', '.join(unsupported)}: not available with --autopilot ardupilot-sitl"
+            )
+        from sim.camera import CameraConfig
+        from sim.sitl_run import SitlOptions, run_sitl
+
+        try:
+            camera_cfg = CameraConfig(
+                camera_fov, camera_range, camera_noise, camera_dropout, camera_rate, seed
+            )
+        except ValueError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        options = SitlOptions(
+            binary=sitl, sensors=sitl_sensors, defaults=sitl_defaults, instance=sitl_instance,
+            workdir=sitl_dir, speedup=speedup, gcs_port=gcs_port or None, stamps=sitl_stamps,
+            params=tuple(sitl_param or ()),
+        )  # fmt: skip
+        code = run_sitl(p, yaw, ids, options, camera_cfg, zenoh, zenoh_connect or [], fleet, quiet)
+        raise typer.Exit(code)
+    try:
         key = load_key(signing_key) if signing_key is not None else None
         config = SimConfig(
             p,
