@@ -5,7 +5,7 @@ world in fixed steps of ``dt_s`` simulation seconds as far as the clock allows, 
 autopilot's flight logic, sends the telemetry that is due, runs the tick hooks (virtual camera,
 clock publisher), and between steps reads whatever the clients sent.
 
-Ports (``shared/notes/mavlink.md``): in UDP mode (PX4 SITL style) vehicle ``i`` owns one socket
+Ports (docs/sim.md): in UDP mode (PX4 SITL style) vehicle ``i`` owns one socket
 bound to ``bind_base + i`` and sends to ``client_base + i`` (the offboard/API port) and to
 ``gcs_port`` (ground stations), and to every address a valid packet came from. In TCP mode
 (ArduPilot SITL style) vehicle ``i`` is a TCP server on ``tcp_base + 10 i``.

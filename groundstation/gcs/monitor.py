@@ -2,7 +2,7 @@
 
 :func:`snapshot` is pure: it folds a :class:`MavlinkState` and a :class:`ZenohState` into a plain
 JSON-able dict at time ``now_s`` (``--once --json`` prints exactly this). Vehicles are matched
-across the two links by ``sysid = agent_id + sysid_offset`` (shared/design.md: vehicle ``i``
+across the two links by ``sysid = agent_id + sysid_offset`` (the fleet's convention: vehicle ``i``
 takes MAVLink system ``i + 1``). :func:`render` turns a snapshot into a rich table;
 :class:`Monitor` owns the listeners and the live loop.
 

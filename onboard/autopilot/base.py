@@ -20,7 +20,7 @@ MAVLink over UDP/TCP/serial with pymavlink) and :class:`onboard.autopilot.mavsdk
 
 Frames: ``v_body`` is the velocity in the vehicle's heading frame (FRD with roll and pitch
 removed, ``v_body = R_z(yaw)^T v_ned``): the frame of the agent model ``pdot = R_z(psi) u``
-(``shared/notes/equations.md``) and of MAVLink's ``MAV_FRAME_BODY_NED`` velocity setpoints, which
+(``onboard/geometry.py``) and of MAVLink's ``MAV_FRAME_BODY_NED`` velocity setpoints, which
 both autopilots rotate by the current yaw only.
 """
 

@@ -16,7 +16,7 @@ Three threads meet here, and one lock (``_cond``) guards everything they share:
   blocking actions, which send COMMAND_LONG and wait for the COMMAND_ACK the receive thread
   stores.
 
-Real autopilots refuse things while they boot (``shared/notes/mavlink.md``; the simulator's
+Real autopilots refuse things while they boot (docs/sim.md; the simulator's
 ``--strict`` mode reproduces it). Every action therefore retries with exponential backoff while the
 refusal is one a later attempt may turn around (TEMPORARILY_REJECTED, DENIED, FAILED, no ACK),
 collects the STATUSTEXT reasons, and checks the outcome in the heartbeat rather than trusting the

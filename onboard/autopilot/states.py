@@ -2,7 +2,7 @@
 
 * flavours and modes: which firmware a HEARTBEAT comes from, the name of its mode, the
   ``DO_SET_MODE`` parameters of a mode name (encodings from :mod:`messages.mavlink`);
-* frames: the heading-frame velocity ``v_body = R_z(yaw)^T v_ned`` (``shared/notes/equations.md``,
+* frames: the heading-frame velocity ``v_body = R_z(yaw)^T v_ned`` (``onboard/geometry.py``,
   agent model ``pdot_i = R_z(psi_i) u_i``);
 * safety: saturation of a velocity + yaw-rate setpoint, NaN/inf replaced by a stop;
 * retries: the backoff schedule;

@@ -78,7 +78,7 @@
                                       # levelling needs roll and pitch at each frame's exposure
 
 Agent ids are the vehicle indices ``0..N-1`` (MAVLink system id = id + 1, PX4 SITL port
-14540 + id), as in ``shared/design.md``.
+14540 + id).
 """
 
 from __future__ import annotations

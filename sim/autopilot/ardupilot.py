@@ -1,4 +1,4 @@
-"""The ArduCopter flavour (``shared/notes/mavlink.md``; ArduCopter ``GCS_MAVLink_Copter.cpp``,
+"""The ArduCopter flavour (docs/sim.md; ArduCopter ``GCS_MAVLink_Copter.cpp``,
 ``mode_guided.cpp``), made to behave like ArduCopter 4.7 SITL where it was measured
 (docs/sim.md, "ArduPilot flavour"):
 

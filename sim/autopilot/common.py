@@ -9,7 +9,7 @@ telemetry streams, and turns MAVLink messages into commands on the shared
 The flavour subclasses (:mod:`sim.autopilot.px4`, :mod:`sim.autopilot.ardupilot`) decide the
 identity and mode encoding, which modes exist and when they may be entered, how takeoff
 commands and velocity setpoints are interpreted, and the setpoint-loss behaviour
-(``shared/notes/mavlink.md``).
+(docs/sim.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The PX4 flavour (``shared/notes/mavlink.md``; PX4 ``commander`` and ``mavlink_receiver``).
+"""The PX4 flavour (docs/sim.md; PX4 ``commander`` and ``mavlink_receiver``).
 
 * identity: autopilot 12, modes as ``custom_mode = (main << 16) | (sub << 24)``, boots in
   AUTO.LOITER (MAVSDK: HOLD);
