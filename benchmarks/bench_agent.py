@@ -21,7 +21,7 @@ import time
 import numpy as np
 from core_replay import describe, record, time_cases
 
-from onboard.agent import AgentConfig
+from onboard.agent_config import AgentConfig
 from sim.compiled_runner import run_compiled
 from sim.runner import RunnerConfig, run
 from sim.scenarios import run_scenario

@@ -24,7 +24,7 @@ import argparse
 import numpy as np
 from core_replay import Inputs, describe, record, time_cases
 
-from onboard.agent import AgentConfig
+from onboard.agent_config import AgentConfig
 from onboard.estimation.distributed_eigen import EigenGains, run_rounds
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel

@@ -263,7 +263,7 @@ def demo(
     if bearings not in ("sim", "camera"):
         typer.echo("error: --bearings must be sim or camera", err=True)
         raise typer.Exit(2)
-    from onboard.agent import Mode
+    from onboard.agent_config import Mode
 
     modes = get_args(Mode)
     if mode not in modes:

@@ -12,7 +12,7 @@ liveliness tokens within about a second, which is what lets agents drop a dead p
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -64,3 +64,16 @@ def open_session(settings: ZenohSettings) -> Any:
     import zenoh
 
     return zenoh.open(zenoh_config(settings))
+
+
+def publisher_put(session: Any) -> Callable[[str, bytes], None]:
+    """A ``put(key, data)`` that declares one publisher per key on first use and reuses it."""
+    publishers: dict[str, Any] = {}
+
+    def put(key: str, data: bytes) -> None:
+        pub = publishers.get(key)
+        if pub is None:
+            pub = publishers[key] = session.declare_publisher(key)
+        pub.put(data)
+
+    return put

@@ -54,7 +54,7 @@ from onboard.rigidity.angle import weighted_eigenvalues_gradients
 from onboard.rigidity.weights import SensingModel
 
 if TYPE_CHECKING:
-    from onboard.agent import AgentConfig
+    from onboard.agent_config import AgentConfig
 
 Vec3 = tuple[float, float, float]
 FRAME_MAX_AGE_S = 0.2

@@ -238,8 +238,12 @@ def sim(
     images: Any = None
     subscribers: list[Any] = []  # keep Zenoh subscribers alive
     if zenoh is not None or zenoh_connect:
-        session = _open_zenoh(zenoh, zenoh_connect or [])
-        put = _zenoh_put(session)
+        from messages.transport import ZenohSettings, open_session, publisher_put
+
+        session = open_session(
+            ZenohSettings(listen=[zenoh] if zenoh else [], connect=zenoh_connect or [])
+        )
+        put = publisher_put(session)
         server.hooks.append(CameraPublisher(camera, fleet, put, ids=ids))
         server.hooks.append(ClockPublisher(fleet, put, server.clock, config.dt_s))
         if rig is not None:
@@ -247,7 +251,7 @@ def sim(
 
             cameras, specs, render = rig
             images = ImagePublisher(
-                cameras, specs, render, fleet, _zenoh_put(session), ids=ids,
+                cameras, specs, render, fleet, publisher_put(session), ids=ids,
                 wind_ned=config.noise.wind_ned_mps,
             )  # fmt: skip
             server.hooks.append(images)
@@ -318,25 +322,6 @@ def _render_rig(
     assert markers is not None
     render = RenderConfig(rate_hz, blur_px, noise, encoding, quality, seed)  # type: ignore[arg-type]
     return [load_camera(f) for f in files], load_markers(markers), render
-
-
-def _open_zenoh(listen: str | None, connect: list[str]) -> Any:
-    """A Zenoh session in peer mode with multicast scouting off and explicit endpoints."""
-    from messages.transport import ZenohSettings, open_session
-
-    return open_session(ZenohSettings(listen=[listen] if listen else [], connect=connect))
-
-
-def _zenoh_put(session: Any) -> Any:
-    publishers: dict[str, Any] = {}
-
-    def put(key: str, data: bytes) -> None:
-        pub = publishers.get(key)
-        if pub is None:
-            pub = publishers[key] = session.declare_publisher(key)
-        pub.put(data)
-
-    return put
 
 
 def _subscribe_steps(session: Any, fleet: str, server: Any) -> Any:

@@ -26,7 +26,7 @@ import msgspec
 import numpy as np
 from numpy.typing import ArrayLike
 
-from onboard.agent import AgentConfig
+from onboard.agent_config import AgentConfig
 from onboard.control.random_motion import _BLOCK
 from onboard.estimation.localization import MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S
 from onboard.graph import normalize_edges, reciprocal_pairs

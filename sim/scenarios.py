@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from onboard.agent import AgentConfig, Mode
+from onboard.agent_config import AgentConfig, Mode
 from onboard.geometry import FloatArray, bearings_body, rot_z
 from sim.runner import Recording, RunnerConfig, run
 

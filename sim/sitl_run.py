@@ -82,7 +82,7 @@ def run_sitl(
 ) -> int:
     """Run until SIGINT/SIGTERM (exit status 0) or a SITL process dies (1); 2 if SITL cannot
     start. Messages are one line each."""
-    from sim.cli import _open_zenoh, _zenoh_put
+    from messages.transport import ZenohSettings, open_session, publisher_put
     from sim.launch import READY_LINE
 
     try:
@@ -103,8 +103,10 @@ def run_sitl(
                             options.speedup)  # fmt: skip
         bridge.connect()  # starts the instances' clocks together
         if zenoh_listen is not None or zenoh_connect:
-            session = _open_zenoh(zenoh_listen, zenoh_connect)
-            put = _zenoh_put(session)
+            session = open_session(
+                ZenohSettings(listen=[zenoh_listen] if zenoh_listen else [], connect=zenoh_connect)
+            )
+            put = publisher_put(session)
             bridge.hooks.append(
                 SitlPublisher(camera, fleet_name, put, options.speedup, ids, options.stamps)
             )

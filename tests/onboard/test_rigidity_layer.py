@@ -10,7 +10,7 @@ import pytest
 from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
-from onboard.agent import AgentConfig
+from onboard.agent_config import AgentConfig
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph
 from onboard.rigidity_layer import RigidityLayer
