@@ -102,7 +102,7 @@ class VehicleStatus(Payload, tag="vehicle.status"):
     phase: str
     """Daemon phase: connecting, waiting, ready, flying, holding, landing, stopped."""
     alarms: list[str] = msgspec.field(default_factory=list)
-    """Active alarms, e.g. ``peer_lost:3``, ``peer_clock:3``, ``rigidity_low``,
+    """Active alarms, e.g. ``peer_lost:3``, ``peer_clock:3``, ``rigidity_lost``,
     ``estimate_diverging``, ``failsafe``, ``altitude_floor``."""
     dropped: dict[str, int] = msgspec.field(default_factory=dict)
     """Counters of dropped input by reason (malformed, version, nonfinite, unknown_sender, ...)."""

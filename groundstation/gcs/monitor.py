@@ -7,7 +7,7 @@ takes MAVLink system ``i + 1``). :func:`render` turns a snapshot into a rich tab
 :class:`Monitor` owns the listeners and the live loop.
 
 A row is red when its heartbeat is older than :data:`HEARTBEAT_LOST_S` or any alarm is active.
-Alarms are the agent's own (``peer_lost:<id>``, ``rigidity_low``, ``estimate_diverging``,
+Alarms are the agent's own (``peer_lost:<id>``, ``rigidity_lost``, ``estimate_diverging``,
 ``failsafe``, ...) plus those the ground station raises itself: ``heartbeat_lost``,
 ``agent_lost`` (liveliness token gone, status older than :data:`AGENT_LOST_S`, or, once the
 monitor has listened on Zenoh that long, an autopilot heard without any agent: one that died
@@ -30,6 +30,7 @@ from groundstation.gcs.mavlink_state import (
     SystemTelemetry,
 )
 from groundstation.gcs.zenoh_listener import AgentTelemetry, ZenohState
+from messages.vocabulary import Alarm, alarm_kind
 
 HEARTBEAT_LOST_S = 4.0
 AGENT_LOST_S = 3.0
@@ -93,7 +94,7 @@ def vehicle_row(
             "statustext": sys.statustext,
         }
         if sys.system_status >= MAV_STATE_CRITICAL:
-            alarms.add("failsafe")
+            alarms.add(Alarm.FAILSAFE)
     elif status is not None and status_age is not None:
         row |= {
             "flavour": None,
@@ -117,13 +118,13 @@ def vehicle_row(
         row["statustext"] = ""
     hb = row["heartbeat_age_s"]
     if hb is None or hb > config.heartbeat_lost_s:
-        alarms.add("heartbeat_lost")
+        alarms.add(Alarm.HEARTBEAT_LOST)
     battery = row["battery_pct"]
     if battery is not None and battery < config.battery_low_pct:
-        alarms.add("battery_low")
+        alarms.add(Alarm.BATTERY_LOW)
     row |= _agent_fields(agent, status, status_age, config, alarms)
     if agent is None and expect_agent:
-        alarms.add("agent_lost")
+        alarms.add(Alarm.AGENT_LOST)
     row["alarms"] = sorted(alarms)
     row["red"] = bool(alarms)
     return row
@@ -140,7 +141,7 @@ def _agent_fields(
         return {"phase": None, "status_age_s": None, "alive": None}
     lost = agent.alive is False or (status_age is not None and status_age > config.agent_lost_s)
     if lost:
-        alarms.add("agent_lost")
+        alarms.add(Alarm.AGENT_LOST)
     out: dict[str, Any] = {
         "phase": None if status is None else status.phase,
         "status_age_s": _round(status_age),
@@ -170,10 +171,12 @@ def _agent_fields(
 def fleet_line(rows: Sequence[dict[str, Any]], zen: ZenohState | None) -> dict[str, Any]:
     """Vehicles up, rigid or not, and time to metric scale."""
     up = sum(
-        1 for r in rows if r["heartbeat_age_s"] is not None and "heartbeat_lost" not in r["alarms"]
+        1
+        for r in rows
+        if r["heartbeat_age_s"] is not None and Alarm.HEARTBEAT_LOST not in r["alarms"]
     )
     agents = [
-        r for r in rows if r.get("agent_mode") is not None and "agent_lost" not in r["alarms"]
+        r for r in rows if r.get("agent_mode") is not None and Alarm.AGENT_LOST not in r["alarms"]
     ]
     eigs = [r["rigidity_eigenvalue"] for r in agents if r.get("rigidity_eigenvalue") is not None]
     rigid: bool | None
@@ -181,7 +184,7 @@ def fleet_line(rows: Sequence[dict[str, Any]], zen: ZenohState | None) -> dict[s
         rigid = None
     else:
         rigid = all(e > RIGIDITY_MIN for e in eigs) and not any(
-            "rigidity_low" in r["alarms"] for r in agents
+            alarm_kind(a) is Alarm.RIGIDITY_LOST for r in agents for a in r["alarms"]
         )
     scale_s = None
     if zen is not None and zen.scale_pending_s is not None and zen.scale_converged_s is not None:
@@ -293,7 +296,7 @@ def render(snap: dict[str, Any]) -> Any:
             _fmt(r["battery_pct"], ".0f"),
             _fmt(r["altitude_m"], ".1f"),
             _fmt(r["speed_m_s"], ".1f"),
-            _fmt(r.get("phase"), none="no agent" if "agent_lost" in r["alarms"] else "-"),
+            _fmt(r.get("phase"), none="no agent" if Alarm.AGENT_LOST in r["alarms"] else "-"),
             " ".join(f"{j}:{d:.1f}" for j, d in list(dist.items())[:3]) or "-",
             _fmt(r.get("e_index"), ".2g"),
             _fmt(r.get("rigidity_eigenvalue"), ".2g"),

@@ -31,6 +31,7 @@ import numpy as np
 from messages.agent import OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand
+from messages.vocabulary import Alarm, alarm_text
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
 from onboard.control.envelope import bound_down_velocity, bound_horizontal_velocity
@@ -401,29 +402,32 @@ class AgentDaemon:
     def _fly(self, now_s: float, tel: Telemetry, setpoint) -> list[str]:
         """Send the setpoint, or zero when unsafe; return the active alarms."""
         c = self.fleet.config
-        alarms = []
+        alarms: list[str] = []
         lost = self.lost_peers(now_s)
-        alarms += [f"peer_lost:{j}" for j in lost]
+        alarms += [alarm_text(Alarm.PEER_LOST, j) for j in lost]
         if lost and not self._rigid_without(lost):
-            alarms.append("rigidity_lost")
+            alarms.append(Alarm.RIGIDITY_LOST)
         skewed = self._check_peer_clocks(now_s)
-        alarms += [f"peer_clock:{j}" for j in skewed]
+        alarms += [alarm_text(Alarm.PEER_CLOCK, j) for j in skewed]
         if tel.stale:
-            alarms.append("autopilot_stale")
+            alarms.append(Alarm.AUTOPILOT_STALE)
         if self.bearings.age_s(now_s) > c.limits.stale_s:
-            alarms.append("bearings_stale")
+            alarms.append(Alarm.BEARINGS_STALE)
         for event in self.link.events():
             if event.kind == "stream_stopped" and self.state.get() == "flying":
                 self.state.set("pilot", event.detail)
         phase = self.state.get()
         if phase == "pilot":
-            alarms.append("failsafe")
+            alarms.append(Alarm.FAILSAFE)
         finite = all(math.isfinite(x) for x in (*setpoint.v_body, setpoint.yaw_rate_rad_s))
         if not finite:
-            alarms.append("estimate_diverging")
+            alarms.append(Alarm.ESTIMATE_DIVERGING)
         if phase == "flying":
             safe = finite and not (
-                tel.stale or skewed or "rigidity_lost" in alarms or "bearings_stale" in alarms
+                tel.stale
+                or skewed
+                or Alarm.RIGIDITY_LOST in alarms
+                or Alarm.BEARINGS_STALE in alarms
             )
             if safe:
                 v = setpoint.v_body
@@ -431,12 +435,12 @@ class AgentDaemon:
                     v[2], tel.altitude_m, c.limits.min_alt_m, c.limits.max_alt_m
                 )
                 if v_down < v[2]:
-                    alarms.append("altitude_floor")
+                    alarms.append(Alarm.ALTITUDE_FLOOR)
                 elif v_down > v[2]:
-                    alarms.append("altitude_ceiling")
+                    alarms.append(Alarm.ALTITUDE_CEILING)
                 v_x, v_y = self._fence(v[0], v[1], tel)
                 if (v_x, v_y) != (v[0], v[1]):
-                    alarms.append("fence")
+                    alarms.append(Alarm.FENCE)
                 self.link.set_setpoint(
                     (v_x, v_y, v_down), setpoint.yaw_rate_rad_s, self._frame_link_time(now_s)
                 )

@@ -19,6 +19,7 @@ from groundstation.gcs.zenoh_listener import ZenohState, classify
 from messages import mavlink as mv
 from messages.codec import SCHEMA_VERSION, MessageError, encode
 from messages.sim import SimClock
+from messages.vocabulary import Alarm, alarm_text
 
 
 class _Sink:
@@ -201,16 +202,20 @@ def test_agent_alarms_pass_through_and_time_to_metric_scale():
     # E = exp(-t / 2) falls below 0.05 at t = 2 ln 20 = 5.99 s
     for t in np.arange(0.0, 8.0, 0.5):
         for i in (0, 1):
-            data = status_bytes(i, float(t), alarms={1: ["rigidity_low", "peer_lost:0"]})
+            data = status_bytes(
+                i,
+                float(t),
+                alarms={1: [alarm_text(Alarm.RIGIDITY_LOST), alarm_text(Alarm.PEER_LOST, 0)]},
+            )
             zen.fold_sample(f"bf/alpha/{i}/status", data, 50.0 + float(t))
     snap = snapshot(None, zen, 57.6, MonitorConfig())
     rows = {r["id"]: r for r in snap["vehicles"]}
-    assert rows[1]["alarms"] == ["peer_lost:0", "rigidity_low"]  # the agent's own alarms
+    assert rows[1]["alarms"] == ["peer_lost:0", "rigidity_lost"]  # the agent's own alarms
     assert rows[1]["red"] and not rows[0]["red"]
     assert rows[0]["scale_converged"] is True
     line = snap["fleet_status"]
     assert line["time_to_metric_scale_s"] == pytest.approx(6.0)
-    assert line["rigid"] is False  # agent 1 raises rigidity_low
+    assert line["rigid"] is False  # agent 1 raises rigidity_lost
 
 
 def test_render_shows_every_vehicle_and_red_rows():

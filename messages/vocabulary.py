@@ -1,0 +1,65 @@
+"""The words that cross processes, defined once: the alarms an agent or the ground station raises.
+
+An alarm travels as text in :attr:`messages.agent.AgentStatus.alarms`: its kind, and for the
+kinds about one neighbour the neighbour's id after a colon (``peer_lost:3``). Senders build it
+with :func:`alarm_text`, receivers read it with :func:`alarm_kind`, so both ends use the same
+word by construction (they once did not: the daemon raised ``rigidity_lost`` while the ground
+station looked for ``rigidity_low``).
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class Alarm(StrEnum):
+    """Every alarm kind, with what raises it."""
+
+    PEER_LOST = "peer_lost"
+    """Agent: a neighbour's liveliness or messages are gone (``peer_lost:<id>``)."""
+    PEER_CLOCK = "peer_clock"
+    """Agent: a neighbour's clock disagrees with this vehicle's (``peer_clock:<id>``)."""
+    RIGIDITY_LOST = "rigidity_lost"
+    """Agent: without its lost neighbours the sensing graph is no longer rigid; it holds."""
+    AUTOPILOT_STALE = "autopilot_stale"
+    """Agent: the autopilot's telemetry is older than the stale limit; it holds."""
+    BEARINGS_STALE = "bearings_stale"
+    """Agent: the camera's bearings are older than the stale limit; it holds."""
+    FAILSAFE = "failsafe"
+    """Agent: the autopilot left offboard/guided control (pilot or failsafe). Ground station:
+    the autopilot reports a critical system state."""
+    ESTIMATE_DIVERGING = "estimate_diverging"
+    """Agent: the core produced a non-finite setpoint; it holds."""
+    ALTITUDE_FLOOR = "altitude_floor"
+    """Agent: the setpoint was bounded by the minimum altitude."""
+    ALTITUDE_CEILING = "altitude_ceiling"
+    """Agent: the setpoint was bounded by the maximum altitude."""
+    FENCE = "fence"
+    """Agent: the setpoint was bounded by the horizontal fence."""
+    HEARTBEAT_LOST = "heartbeat_lost"
+    """Ground station: no autopilot heartbeat within its limit."""
+    BATTERY_LOW = "battery_low"
+    """Ground station: battery below its limit."""
+    AGENT_LOST = "agent_lost"
+    """Ground station: the vehicle's agent daemon is gone or silent."""
+
+
+PER_PEER = frozenset({Alarm.PEER_LOST, Alarm.PEER_CLOCK})
+"""The kinds that name one neighbour."""
+
+
+def alarm_text(kind: Alarm, peer: int | None = None) -> str:
+    """The wire form of an alarm: ``kind``, or ``kind:peer`` for the per-neighbour kinds."""
+    if (kind in PER_PEER) != (peer is not None):
+        raise ValueError(
+            f"alarm {kind.value!r} {'needs' if kind in PER_PEER else 'takes no'} peer id"
+        )
+    return kind.value if peer is None else f"{kind.value}:{peer}"
+
+
+def alarm_kind(text: str) -> Alarm | None:
+    """The kind of an alarm's wire form, or None for a word this version does not know."""
+    try:
+        return Alarm(text.partition(":")[0])
+    except ValueError:
+        return None
