@@ -1,7 +1,7 @@
 """What enters and leaves one agent core besides peer messages: its own measurements, the
 setpoint it commands, and the status it reports to the ground station.
 
-Frames: body is FRD, velocities in m/s, angles in rad, times in s (``shared/design.md``).
+Frames: body is FRD, velocities in m/s, angles in rad, times in s (``docs/design.md``).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Zenoh key expressions: ``bf/<fleet>/<agent_id>/<topic>`` (shared/design.md)."""
+"""Zenoh key expressions: ``bf/<fleet>/<agent_id>/<topic>`` (docs/design.md)."""
 
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ Plain integers and small pure functions, no I/O and no pymavlink import, so both
 link agree on one spelling of: the ``SET_POSITION_TARGET_LOCAL_NED`` type-mask bits and frames,
 the PX4 ``custom_mode`` encoding (``(main << 16) | (sub << 24)``) and the ArduCopter mode
 numbers, the HEARTBEAT ``base_mode`` flags, and the COMMAND_ACK results we use
-(``shared/notes/mavlink.md``).
+(``docs/mavlink.md``).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
   body frame (FRD, camera axis = body x) to the vehicles inside its field of view and range.
   Agents use it exactly like a real camera pipeline's output.
 * :class:`Truth` — the simulator's ground truth for one vehicle. For the recorder and the
-  evaluation only; estimators must never subscribe to it (design.md, "No truth leaks").
+  evaluation only; estimators must never subscribe to it (docs/design.md, "No truth leaks").
 * :class:`SimClock` — the simulation time, published by the simulator (``use_sim_time``).
 * :class:`SimStep` — in lockstep mode, "advance simulation time up to ``until_s``".
 

@@ -1,6 +1,6 @@
 """Zenoh session configuration shared by agents, the simulator and the ground station.
 
-Default (shared/design.md): peer mode on loopback, multicast scouting off, explicit endpoints.
+Default (docs/design.md): peer mode on loopback, multicast scouting off, explicit endpoints.
 Every process listens on its own TCP port and connects to the ports of the processes it knows;
 gossip scouting then spreads the rest. A router (``zenohd``) or TLS is configuration: pass
 ``mode="client"`` and the router's endpoint in ``connect``, or a full JSON5 file.

@@ -1,6 +1,6 @@
 """Rotations and bearings: the geometry every estimator, controller and the simulator share.
 
-Conventions (``shared/notes/equations.md``): the world frame is local NED, the body frame is
+Conventions (docs/equations.md, "Conventions"): the world frame is local NED, the body frame is
 FRD, the camera's optical axis is body x. ``hat(v) @ w == np.cross(v, w)``. Every function is
 pure and vectorized over leading axes: a ``(..., 3)`` array of vectors gives ``(..., 3, 3)``
 matrices and so on.

@@ -5,7 +5,7 @@ and yaw rate ``yaw_rate_radps`` it actually flies. Its autopilot gives it, per v
 
 * a velocity command ``v_cmd`` in NED or in the heading frame (``cmd_body``; then the world
   rotates it by the current yaw at every step, the agent model ``pdot = R_z(psi) u`` of
-  ``shared/notes/equations.md``, "Scale from motion"), or
+  ``docs/equations.md``, "Scale from motion"), or
 * a position to hold ``hold_ned`` (``hold_active``): the velocity command becomes a saturated
   proportional law ``k_p (hold - p)`` with separate horizontal, climb and descent limits,
 

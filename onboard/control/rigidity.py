@@ -3,7 +3,7 @@
 Paper 003 sec. 4.3-5.1 steers every robot with the negative gradient of a sum of potentials
 (eq. 14): a barrier on the weighted angle rigidity eigenvalue (eq. 19), a pairwise collision
 potential (eq. 30) and a mission potential (eq. 32, target tracking). The equations lost their
-symbols in extraction; the forms below follow ``shared/notes/equations.md`` ("Angle rigidity")
+symbols in extraction; the forms below follow ``docs/equations.md`` ("Angle rigidity")
 and are chosen here:
 
 **Rational barrier.** For a quantity ``x`` that must stay above ``x_min`` and is harmless above

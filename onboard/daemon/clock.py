@@ -1,6 +1,6 @@
 """The daemon's clock: wall time on real vehicles, the simulator's published time in simulation.
 
-Time is injected (``shared/design.md``): the agent core integrates with the differences of
+Time is injected (``docs/design.md``): the agent core integrates with the differences of
 this clock, so in a simulation that runs faster than real time the daemon must follow the
 simulator's clock, or every velocity it integrates would be scaled by the speed-up.
 """

@@ -8,7 +8,7 @@ streams it at ``rates.setpoint``. The **flight thread** runs the slow, blocking 
 actions (connect, wait for the estimator, arm, take off, enter OFFBOARD/GUIDED, land) so the
 core never stalls behind them.
 
-Safety (shared/design.md): setpoints are saturated by the link; stale inputs (autopilot
+Safety (docs/design.md): setpoints are saturated by the link; stale inputs (autopilot
 telemetry, bearings, the clock) or a sensing graph that is no longer rigid after a peer was lost
 give zero velocity (hold); a pilot who takes the vehicle out of OFFBOARD/GUIDED gets it, since
 the link stops streaming; SIGINT/SIGTERM hold, then exit (or land, if configured).

@@ -7,7 +7,7 @@ its own threads; the link queues what arrives and the agent loop drains it.
 
 Bad input never reaches the agent core: every sample is decoded and validated
 (``messages.codec``), its sender must be a fleet member and match the key it came on, and a
-failure is counted by reason and logged once per reason (shared/design.md).
+failure is counted by reason and logged once per reason (docs/design.md).
 """
 
 from __future__ import annotations

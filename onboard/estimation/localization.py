@@ -8,7 +8,7 @@ gradient descent of
     J(qhat) = (k_L / 2) sum_E |betahat_ij - beta_ij|^2 + (k_d / 4) sum_{E_u} (|phat_ij|^2 - dhat_ij^2)^2,
 
 with ``betahat_ij = R_z(psihat_i)^T phat_ij / |phat_ij|`` and ``dhat_ij = 1 / chihat_ij`` from
-the SfM observers (eq. 6, reconstructed in ``shared/notes/equations.md``; ``k_L = 100``,
+the SfM observers (eq. 6, reconstructed in docs/equations.md, "Scale from motion"; ``k_L = 100``,
 ``k_d = 1``):
 
     phat_i' = R_z(psihat_i) u_i - dJ/dphat_i,        psihat_i' = w_i - dJ/dpsihat_i.

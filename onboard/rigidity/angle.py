@@ -2,7 +2,7 @@
 
 Paper 003 ("Angle-based Localization and Rigidity Maintenance Control for Multi-Robot
 Networks"); its equations lost their symbols in extraction, so everything here follows the
-restatement in ``shared/notes/equations.md`` ("Angle rigidity") and is re-derived below.
+restatement in ``docs/equations.md`` ("Angle rigidity") and is re-derived below.
 
 **Angles.** Agent ``i`` measures the bearings ``b_ij``, ``b_ik`` to two neighbours; the angle
 measurement is ``f_ijk = b_ij . b_ik`` (frame-free: the same in body and world frames). The

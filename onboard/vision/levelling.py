@@ -3,7 +3,7 @@
 The autopilot's roll and pitch are reliable (gravity is observed), its yaw is not. Bearings
 measured in the tilted body frame (FRD) are therefore rotated into the *heading* (levelled)
 frame: the frame that has the body's yaw but a vertical third axis, which is the body frame of
-the project's R^3 x S^1 agent model (``shared/notes/equations.md``). With the ZYX attitude of
+the project's R^3 x S^1 agent model (docs/equations.md, "Conventions"). With the ZYX attitude of
 MAVLink, ``R_ned_body = R_z(yaw) R_y(pitch) R_x(roll)`` and ``R_ned_heading = R_z(yaw)``, so
 
     beta_level = R_y(pitch) R_x(roll) beta_body.
