@@ -24,6 +24,7 @@ channels), so replay and plots read both.
 from __future__ import annotations
 
 import json
+import struct
 import threading
 import time
 from collections.abc import Iterator
@@ -49,7 +50,12 @@ LIVELINESS_ENCODING = "bearingflock/liveliness"
 MAVLINK_ENCODING = "mavlink"
 """Raw MAVLink frames: the channels of recordings written before the JSON ones."""
 MAVLINK_TOPIC_PREFIX = "mavlink/"
-CHUNK_BYTES = 256 * 1024
+CHUNK_BYTES = 64 * 1024
+"""Uncompressed size at which a chunk is written out (MCAP compresses per chunk)."""
+FLUSH_PERIOD_S = 1.0
+"""A chunk is also written out, and the file flushed, at least this often while messages come:
+a recorder killed without warning (SIGKILL, power loss) loses at most the last
+``FLUSH_PERIOD_S`` or the last :data:`CHUNK_BYTES` of messages, whichever is less."""
 
 
 class Source:
@@ -85,6 +91,7 @@ class Recorder:
     path: Path
     fleet: str
     tlog: bool = True
+    chunk_bytes: int = CHUNK_BYTES
     counts: dict[str, int] = field(default_factory=dict)
     scene: SceneBuilder = field(default_factory=SceneBuilder)
     _lock: threading.Lock = field(default_factory=threading.Lock)
@@ -94,6 +101,9 @@ class Recorder:
     _file: IO[bytes] | None = None
     _writer: Any = None
     _tlog: TlogWriter | None = None
+    _flushed_s: float = 0.0
+    _flusher: threading.Thread | None = None
+    _stop: threading.Event = field(default_factory=threading.Event)
 
     def __post_init__(self) -> None:
         from mcap.writer import Writer
@@ -102,11 +112,31 @@ class Recorder:
         self._file = self.path.open("wb")
         if self.tlog:
             self._tlog = TlogWriter(tlog_path(self.path))
-        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES)
+        self._writer = Writer(self._file, chunk_size=self.chunk_bytes)
         self._writer.start(profile="", library="bearingflock gcs record")
         self._writer.add_metadata(
             "bearingflock", {"fleet": self.fleet, "started_unix_s": f"{time.time():.3f}"}
         )
+        self._file.flush()  # the header is on disk: a killed recorder leaves an MCAP file
+        self._flushed_s = time.monotonic()
+        self._flusher = threading.Thread(target=self._flush_loop, name="mcap-flush", daemon=True)
+        self._flusher.start()
+
+    def _flush_loop(self) -> None:
+        """Flush in quiet moments too (a chunk with no messages is not written)."""
+        while not self._stop.wait(FLUSH_PERIOD_S / 2):
+            with self._lock:
+                if self._writer is None:
+                    return
+                if time.monotonic() - self._flushed_s >= FLUSH_PERIOD_S:
+                    self._flush()
+
+    def _flush(self) -> None:
+        """Write the open chunk and flush both files (the lock is held)."""
+        self._writer.flush()
+        if self._tlog is not None:
+            self._tlog.flush()
+        self._flushed_s = time.monotonic()
 
     def _schema_id(self, name: str, data: bytes) -> int:
         sid = self._schemas.get(name)
@@ -130,6 +160,8 @@ class Recorder:
         self._seq[ch] = seq + 1
         self._writer.add_message(ch, t_ns, data, t_ns, seq)
         self.counts[source] = self.counts.get(source, 0) + 1
+        if time.monotonic() - self._flushed_s >= FLUSH_PERIOD_S:
+            self._flush()
 
     def zenoh_sample(self, key: str, data: bytes, t_wall_s: float) -> None:
         t_ns = int(t_wall_s * 1e9)
@@ -189,6 +221,7 @@ class Recorder:
             self._write(topic, schema, body, int(t_wall_s * 1e9), Source.MAVLINK)
 
     def close(self) -> None:
+        self._stop.set()
         with self._lock:
             if self._writer is not None:
                 self._writer.finish()
@@ -242,28 +275,82 @@ def to_record(schema: Any, channel: Any, message: Any) -> Record | None:
     return Record(topic, enc, data, t, source)
 
 
-def iter_records(path: str | Path) -> Iterator[Record]:
-    """Every message of an MCAP file in log-time order. Raises :class:`NotMcapError` if the
-    file does not start with the MCAP magic bytes."""
+@dataclass
+class Recording:
+    """What :func:`read_recording` found: the records in log-time order, and whether the file
+    was closed (``complete``) or is what a killed recorder left (read up to its last whole
+    chunk; ``dropped_tail_bytes`` after it could not be read)."""
+
+    records: list[Record]
+    complete: bool
+    dropped_tail_bytes: int = 0
+    unreadable: int = 0
+    """Messages of a payload schema this version does not know."""
+
+    def describe(self, path: str | Path) -> str:
+        """One line for the operator; empty for a complete file."""
+        if self.complete:
+            return ""
+        return (
+            f"{path} was not closed (its recorder was killed?): recovered {len(self.records)} "
+            f"messages up to its last complete chunk, {self.dropped_tail_bytes} bytes after it "
+            "unreadable"
+        )
+
+
+def _read_unfinished(f: IO[bytes], size: int) -> tuple[list, int]:
+    """Every message of the whole chunks of a file that has no summary (a killed recorder's),
+    and how many bytes at its end could not be read. Read in file order
+    (``log_time_order=False``: the reader's time ordering buffers everything until the end of
+    the file and loses it all on a truncated tail)."""
     from mcap.exceptions import McapError
-    from mcap.reader import NonSeekingReader, make_reader
+    from mcap.reader import NonSeekingReader
+
+    f.seek(0)
+    items: list = []
+    good_end = 0
+    try:
+        for item in NonSeekingReader(f).iter_messages(log_time_order=False):
+            items.append(item)
+            good_end = f.tell()
+    except (McapError, ValueError, EOFError, OSError, MemoryError, struct.error):
+        pass  # the truncated tail: keep what came before it
+    else:
+        good_end = size
+    items.sort(key=lambda it: it[2].log_time)
+    return items, max(0, size - good_end)
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Every message of an MCAP file in log-time order, also of a file whose recorder was
+    killed (see :class:`Recording`). Raises :class:`NotMcapError` if the file does not start
+    with the MCAP magic bytes."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
 
     path = Path(path)
     check_mcap(path)
+    size = path.stat().st_size
+    complete, tail = True, 0
     with path.open("rb") as f:
         try:
             reader = make_reader(f)
+            if reader.get_summary() is None:
+                raise McapError("no summary")
             items = list(reader.iter_messages(log_time_order=True))
-        except (McapError, ValueError, EOFError):
-            items = []
-            f.seek(0)
-            try:  # an unfinished file: read chunk by chunk as far as it goes
-                for item in NonSeekingReader(f).iter_messages():
-                    items.append(item)
-            except (McapError, ValueError, EOFError):
-                pass
-            items.sort(key=lambda it: it[2].log_time)
+        except (McapError, ValueError, EOFError, OSError, struct.error):
+            complete = False
+            items, tail = _read_unfinished(f, size)
+    records, unreadable = [], 0
     for schema, channel, message in items:
         rec = to_record(schema, channel, message)
-        if rec is not None:
-            yield rec
+        if rec is None:
+            unreadable += 1
+        else:
+            records.append(rec)
+    return Recording(records, complete, tail, unreadable)
+
+
+def iter_records(path: str | Path) -> Iterator[Record]:
+    """The records of :func:`read_recording` (a killed recorder's file too)."""
+    yield from read_recording(path).records

@@ -21,11 +21,13 @@ from groundstation.gcs.foxglove_scene import (
     align_estimates,
 )
 from groundstation.gcs.record import (
+    CHUNK_BYTES,
     LIVELINESS_ENCODING,
     ZENOH_ENCODING,
     Recorder,
     Source,
     iter_records,
+    read_recording,
     tlog_path,
 )
 from groundstation.gcs.standin import StandinConfig, scripted_status
@@ -56,10 +58,10 @@ def mavlink_frames(sysid: int) -> list:
     return out
 
 
-def write_team(path: Path) -> Recorder:
+def write_team(path: Path, chunk_bytes: int = CHUNK_BYTES) -> Recorder:
     """Two flying stand-in agents with truth and camera bearings, clock, a broken sample, a
     liveliness token and MAVLink of both vehicles, over 2 s."""
-    rec = Recorder(path, "alpha")
+    rec = Recorder(path, "alpha", chunk_bytes=chunk_bytes)
     cfg = StandinConfig("alpha", [0, 1])
     rec.alive("bf/alpha/0/alive", True, T0)
     for k in range(20):
@@ -212,3 +214,25 @@ def test_a_recording_of_the_earlier_schema_less_format_is_still_read(tmp_path):
         ("mavlink/1", "mavlink", Source.MAVLINK),
     ]
     assert recs[1].data == status
+
+
+def test_a_file_cut_anywhere_reads_back_up_to_its_last_whole_chunk(tmp_path):
+    """What a killed recorder leaves (issue 23, defect 10): the reader recovers every message of
+    the whole chunks before the cut, in log-time order, and says the file was not closed."""
+    path = tmp_path / "team.mcap"
+    write_team(path, chunk_bytes=4096)
+    full = read_recording(path)
+    assert full.complete and full.describe(path) == ""
+    data = path.read_bytes()
+    counts = []
+    for frac in (0.2, 0.5, 0.8, 0.999):
+        cut = tmp_path / f"cut{frac}.mcap"
+        cut.write_bytes(data[: int(len(data) * frac)])
+        part = read_recording(cut)
+        assert not part.complete and "was not closed" in part.describe(cut)
+        assert [r.log_time_ns for r in part.records] == sorted(r.log_time_ns for r in part.records)
+        assert {(r.topic, r.log_time_ns, r.data) for r in part.records} <= {
+            (r.topic, r.log_time_ns, r.data) for r in full.records
+        }
+        counts.append(len(part.records))
+    assert counts == sorted(counts) and 0 < counts[0] < counts[-1], counts
