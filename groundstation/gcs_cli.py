@@ -92,6 +92,12 @@ def _read_recording(src: Path) -> Any:
 
     _check_recording(src)
     recording = read_recording(src)
+    if recording.unreadable:
+        typer.echo(
+            f"{src}: skipped {recording.unreadable} messages of payload types this version "
+            "does not know (a newer bearingflock's recording?)",
+            err=True,
+        )
     if not recording.complete:
         typer.echo(recording.describe(src), err=True)
         if not recording.records:

@@ -12,6 +12,7 @@ import numpy as np
 from mcap.writer import Writer
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
+from typer.testing import CliRunner
 
 from groundstation.gcs.foxglove_scene import (
     SCENE_SCHEMA_NAME,
@@ -31,6 +32,7 @@ from groundstation.gcs.record import (
     tlog_path,
 )
 from groundstation.gcs.standin import StandinConfig, scripted_status
+from groundstation.gcs_cli import gcs_app
 from messages.codec import decode, encode
 from messages.image import Image
 from messages.rigidity import RigidityEigenShare
@@ -236,3 +238,18 @@ def test_a_file_cut_anywhere_reads_back_up_to_its_last_whole_chunk(tmp_path):
         }
         counts.append(len(part.records))
     assert counts == sorted(counts) and 0 < counts[0] < counts[-1], counts
+
+
+def test_a_payload_type_this_version_does_not_know_is_skipped_and_said(tmp_path):
+    path = tmp_path / "newer.mcap"
+    rec = Recorder(path, "alpha", tlog=False)
+    status = scripted_status(StandinConfig("alpha", [0]), 0, 0.0, 0, "flying")
+    rec.zenoh_sample("bf/alpha/0/status", encode(status), T0)
+    with rec._lock:  # what a newer version would write: a schema this one has no struct for
+        rec._write("bf/alpha/0/future", ("bearingflock.FromTheFuture", b"{}"), b"{}", 2, "zenoh")
+    rec.close()
+    recording = read_recording(path)
+    assert recording.unreadable == 1 and recording.complete
+    assert [r.topic for r in recording.records if r.source == Source.ZENOH] == ["bf/alpha/0/status"]
+    res = CliRunner().invoke(gcs_app, ["plot", str(path), "--out", str(tmp_path / "p")])
+    assert res.exit_code == 0 and "skipped 1 messages of payload types" in res.output
