@@ -115,10 +115,12 @@ def main() -> None:
             dt = best_of(fn, path, samples, args.repeats)
             rows.append((name, path.stat().st_size, dt))
         base_size, base_dt = rows[0][1], rows[0][2]
+        span_s = max(t for _, _, t in samples) - min(t for _, _, t in samples)
         for name, size, dt in rows:
             print(
                 f"{name:34s} {size / 1e6:7.2f} MB ({size / base_size:4.2f}x)  "
-                f"{len(samples) / dt / 1e3:7.1f} k samples/s ({dt / base_dt:4.2f}x the time)"
+                f"{len(samples) / dt / 1e3:7.1f} k samples/s ({dt / base_dt:4.2f}x the time), "
+                f"{100 * dt / span_s:5.1f}% of a core at the recorded rate"
             )
 
 

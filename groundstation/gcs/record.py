@@ -23,7 +23,6 @@ channels), so replay and plots read both.
 
 from __future__ import annotations
 
-import json
 import struct
 import threading
 import time
@@ -31,6 +30,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
+
+import msgspec
 
 from groundstation.gcs import schemas
 from groundstation.gcs.foxglove_scene import (
@@ -50,6 +51,7 @@ LIVELINESS_ENCODING = "bearingflock/liveliness"
 MAVLINK_ENCODING = "mavlink"
 """Raw MAVLink frames: the channels of recordings written before the JSON ones."""
 MAVLINK_TOPIC_PREFIX = "mavlink/"
+_scene_json = msgspec.json.Encoder()
 CHUNK_BYTES = 64 * 1024
 """Uncompressed size at which a chunk is written out (MCAP compresses per chunk)."""
 FLUSH_PERIOD_S = 1.0
@@ -188,11 +190,11 @@ class Recorder:
         tfs, update = msgs
         self._write(
             TRANSFORMS_TOPIC, (TRANSFORMS_SCHEMA_NAME, FRAME_TRANSFORMS_SCHEMA),
-            json.dumps(tfs).encode(), t_ns, Source.SCENE,
+            _scene_json.encode(tfs), t_ns, Source.SCENE,
         )  # fmt: skip
         self._write(
             SCENE_TOPIC, (SCENE_SCHEMA_NAME, SCENE_UPDATE_SCHEMA),
-            json.dumps(update).encode(), t_ns, Source.SCENE,
+            _scene_json.encode(update), t_ns, Source.SCENE,
         )  # fmt: skip
 
     def alive(self, key: str, alive: bool, t_wall_s: float) -> None:
