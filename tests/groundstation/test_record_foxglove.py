@@ -15,11 +15,13 @@ from pymavlink.dialects.v20 import common as mavlink2
 from typer.testing import CliRunner
 
 from groundstation.gcs.foxglove_scene import (
+    NED_IN_ENU,
     SCENE_SCHEMA_NAME,
     SCENE_TOPIC,
     TRANSFORMS_SCHEMA_NAME,
     TRANSFORMS_TOPIC,
     align_estimates,
+    yaw_quaternion,
 )
 from groundstation.gcs.record import (
     CHUNK_BYTES,
@@ -253,3 +255,18 @@ def test_a_payload_type_this_version_does_not_know_is_skipped_and_said(tmp_path)
     assert [r.topic for r in recording.records if r.source == Source.ZENOH] == ["bf/alpha/0/status"]
     res = CliRunner().invoke(gcs_app, ["plot", str(path), "--out", str(tmp_path / "p")])
     assert res.exit_code == 0 and "skipped 1 messages of payload types" in res.output
+
+
+def _rotate(q: dict[str, float], v: np.ndarray) -> np.ndarray:
+    """``v`` rotated by the unit quaternion ``q`` (Hamilton, x y z w)."""
+    u, w = np.array([q["x"], q["y"], q["z"]]), q["w"]
+    return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
+
+
+def test_the_ned_frame_sits_in_foxglove_s_z_up_world_and_yaw_turns_north_to_east():
+    # north is ENU y, east is ENU x, down is -z
+    assert np.allclose(_rotate(NED_IN_ENU, np.array([1.0, 0, 0])), [0, 1, 0])
+    assert np.allclose(_rotate(NED_IN_ENU, np.array([0, 1.0, 0])), [1, 0, 0])
+    assert np.allclose(_rotate(NED_IN_ENU, np.array([0, 0, 1.0])), [0, 0, -1])
+    # a vehicle yawed +90 deg (NED) has its nose east
+    assert np.allclose(_rotate(yaw_quaternion(math.pi / 2), np.array([1.0, 0, 0])), [0, 1, 0])
