@@ -28,6 +28,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
 from typing import IO, Any
 
@@ -60,13 +61,19 @@ a recorder killed without warning (SIGKILL, power loss) loses at most the last
 ``FLUSH_PERIOD_S`` or the last :data:`CHUNK_BYTES` of messages, whichever is less."""
 
 
-class Source:
+class Source(str, Enum):
     """Words of a channel's ``source`` metadata (and :attr:`Record.source`)."""
 
     ZENOH = "zenoh"
     LIVELINESS = "liveliness"
     MAVLINK = "mavlink"
     SCENE = "scene"
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
 
 
 @dataclass(frozen=True)
@@ -148,20 +155,20 @@ class Recorder:
         return sid
 
     def _write(
-        self, topic: str, schema: tuple[str, bytes], data: bytes, t_ns: int, source: str
+        self, topic: str, schema: tuple[str, bytes], data: bytes, t_ns: int, source: Source
     ) -> None:
         """Write one message (the lock is held)."""
         ch = self._channels.get((topic, schema[0]))
         if ch is None:
             sid = self._schema_id(*schema)
             ch = self._writer.register_channel(
-                topic, schemas.JSON_ENCODING, sid, {"source": source}
+                topic, schemas.JSON_ENCODING, sid, {"source": Source(source).value}
             )
             self._channels[(topic, schema[0])] = ch
         seq = self._seq.get(ch, 0)
         self._seq[ch] = seq + 1
         self._writer.add_message(ch, t_ns, data, t_ns, seq)
-        self.counts[source] = self.counts.get(source, 0) + 1
+        self.counts[source.value] = self.counts.get(source.value, 0) + 1
         if time.monotonic() - self._flushed_s >= FLUSH_PERIOD_S:
             self._flush()
 

@@ -248,7 +248,9 @@ def test_a_payload_type_this_version_does_not_know_is_skipped_and_said(tmp_path)
     status = scripted_status(StandinConfig("alpha", [0]), 0, 0.0, 0, "flying")
     rec.zenoh_sample("bf/alpha/0/status", encode(status), T0)
     with rec._lock:  # what a newer version would write: a schema this one has no struct for
-        rec._write("bf/alpha/0/future", ("bearingflock.FromTheFuture", b"{}"), b"{}", 2, "zenoh")
+        rec._write(
+            "bf/alpha/0/future", ("bearingflock.FromTheFuture", b"{}"), b"{}", 2, Source.ZENOH
+        )
     rec.close()
     recording = read_recording(path)
     assert recording.unreadable == 1 and recording.complete
