@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -465,8 +466,13 @@ def run_demo(
     sitl: Path | None = None,
     sitl_sensors: str = "flow",
     sitl_params: Sequence[str] = (),
+    record: bool = True,
 ) -> dict[str, Any]:
     """Run the whole mission (module docstring) and return its summary.
+
+    ``record``: the ground station's recording of the run goes to ``out/recording.mcap``
+    (every Zenoh sample of the fleet, Foxglove's scene of the team) and ``out/recording.tlog``
+    (the MAVLink the simulator sends to the ground-station port), as ``gcs record`` writes them.
 
     ``autopilot = "ardupilot-sitl"``: real ArduCopter SITL processes instead of the simulated
     autopilots (``bearingflock sim --autopilot ardupilot-sitl``; binary ``sitl`` or
@@ -510,6 +516,7 @@ def run_demo(
             f.write(f"[limits]\nstale_s = {stale_s:.3f}\n")
     procs = Processes(out)
     evaluator: Evaluator | None = None
+    stack = ExitStack()
     rig = [a for f in camera_files for a in ("--camera", str(f))]
     marker_args = ["--markers", str(markers_file)] if markers_file is not None else []
     agent_camera_args = [*rig, *marker_args] if bearings == "camera" else []
@@ -539,6 +546,8 @@ def run_demo(
             ),
         )
         ev = evaluator
+        if record:
+            recording = _start_recording(stack, out / RECORDING_NAME, fleet, ev.session, ports)
 
         def sim_now() -> float | None:
             stamps = [tr.stamp_s for tr in list(ev.truth.values())]
@@ -584,6 +593,8 @@ def run_demo(
             if on_tick is not None:
                 on_tick(evaluator, duration_s, phase)
         summary["landed"] = evaluator.all_landed()
+        if record:
+            summary["recording"] = str(recording)
         if summary["mission_start_s"] is None:
             phases = ", ".join(f"{k}: {st.phase}" for k, st in sorted(evaluator.snapshot().items()))
             raise RuntimeError(
@@ -594,10 +605,38 @@ def run_demo(
             )
         return summary
     finally:
+        stack.close()  # the recording first: its listeners use the evaluator's session
         if evaluator is not None:
             _save(evaluator, out)
             evaluator.close()
         procs.stop()
+
+
+RECORDING_NAME = "recording.mcap"
+
+
+def _start_recording(
+    stack: ExitStack, path: Path, fleet: str, session: Any, ports: DemoPorts
+) -> Path:
+    """Record the run as ``gcs record`` does, on the evaluator's Zenoh session and the
+    ground-station MAVLink port (a listening ground station: heartbeats, no stream requests).
+    Everything is closed by ``stack``, the file last."""
+    from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
+    from groundstation.gcs.record import Recorder
+    from groundstation.gcs.zenoh_listener import ZenohListener
+
+    recorder = Recorder(path, fleet)
+    stack.callback(recorder.close)
+    listener = ZenohListener(session, fleet)
+    listener.sample_hooks.append(recorder.zenoh_sample)
+    listener.alive_hooks.append(recorder.alive)
+    stack.callback(listener.close)
+    listener.start()
+    mav = MavlinkListener([parse_endpoint(f"udp:127.0.0.1:{ports.gcs}")], request_streams=False)
+    mav.hooks.append(recorder.mavlink)
+    stack.callback(mav.close)
+    mav.start()
+    return path
 
 
 def _save(ev: Evaluator, out: Path) -> None:
@@ -618,4 +657,5 @@ def _save(ev: Evaluator, out: Path) -> None:
         flying=np.array(s.flying),
         pairs=ev.pairs,
         p_desired_ned=ev.plan.p_ned,
+        lambda_safe=demo_lambda_safe(ev.plan),
     )

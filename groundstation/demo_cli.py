@@ -11,7 +11,7 @@ import json as jsonlib
 import math
 import os
 import sys
-import tempfile
+import time
 from pathlib import Path
 from typing import Annotated, get_args
 
@@ -157,7 +157,13 @@ def demo(
     duration: Annotated[
         float, typer.Option(help="Mission time before landing (simulation s).")
     ] = 60.0,
-    out: Annotated[Path | None, typer.Option(help="Directory for logs, data and plots.")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="Directory for logs, data, plots and the recording "
+            "(default: ./bearingflock-demo-<time>)."
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the formation and of all noise.")] = 0,
     mode: Annotated[str, typer.Option(help="Agent core mode.")] = "formation-active",
     json: Annotated[
@@ -289,7 +295,14 @@ def demo(
     if not render_rate > 0.0:
         typer.echo("error: --render-rate must be > 0", err=True)
         raise typer.Exit(2)
-    out_dir = out or Path(tempfile.mkdtemp(prefix="bearingflock-demo-"))
+    out_dir = out or default_out_dir()
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / ".write-test").touch()
+        (out_dir / ".write-test").unlink()
+    except OSError as exc:
+        typer.echo(f"error: --out {out_dir}: cannot write there ({exc.strerror})", err=True)
+        raise typer.Exit(2) from None
     camera_files: list[Path] = []
     markers_file = None
     if bearings == "camera":
@@ -338,10 +351,37 @@ def demo(
     summary["speedup"] = speed
     summary["out"] = str(out_dir)
     summary["plots"] = [str(p) for p in plot_demo(out_dir)]
+    _finish(summary, json, console, out_dir)
+
+
+def default_out_dir(now: float | None = None) -> Path:
+    """``./bearingflock-demo-<local time>``: where a demo without ``--out`` writes its files."""
+    return Path(f"bearingflock-demo-{time.strftime('%Y%m%d-%H%M%S', time.localtime(now))}")
+
+
+def _finish(summary: dict, json: bool, console: Console, out_dir: Path | None) -> None:
+    """Add the verdict, write ``summary.json`` (with an output directory), print the summary
+    (``--json``: one JSON object on stdout) and end with the verdict line; exit 1 on FAIL."""
+    from groundstation.demo_verdict import demo_verdict
+
+    verdict = demo_verdict(summary, str(out_dir) if out_dir is not None else None)
+    summary["verdict"] = verdict.as_json()
+    if out_dir is not None:
+        (out_dir / "summary.json").write_text(jsonlib.dumps(summary, indent=1) + "\n")
     if json:
         sys.stdout.write(jsonlib.dumps(summary) + "\n")
     else:
-        console.print_json(jsonlib.dumps(summary))
+        for name in ("plots", "recording"):
+            value = summary.get(name)
+            if value:
+                shown = ", ".join(value) if isinstance(value, list) else value
+                console.print(f"{name}: {escape(shown)}")
+        if out_dir is not None:
+            console.print(f"summary: {escape(str(out_dir / 'summary.json'))}")
+        colour = "green" if verdict.passed else "red"
+        console.print(f"[bold {colour}]{escape(verdict.line)}[/bold {colour}]", soft_wrap=True)
+    if not verdict.passed:
+        raise typer.Exit(1)
 
 
 def _headless(
@@ -359,10 +399,7 @@ def _headless(
             progress=lambda f: bar.update(task, completed=f),
         )  # fmt: skip
     summary["headless"] = True
-    if json:
-        sys.stdout.write(jsonlib.dumps(summary) + "\n")
-    else:
-        Console().print_json(jsonlib.dumps(summary))
+    _finish(summary, json, Console(), None)
 
 
 class _Null:

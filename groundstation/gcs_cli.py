@@ -85,6 +85,26 @@ def _check_recording(src: Path) -> None:
         raise _fail(str(exc)) from None
 
 
+def _read_recording(src: Path) -> Any:
+    """Read a recording (also one a killed recorder left: say so, and how much was recovered);
+    exit 2 if it is not one, 1 if nothing could be recovered."""
+    from groundstation.gcs.record import read_recording
+
+    _check_recording(src)
+    recording = read_recording(src)
+    if recording.unreadable:
+        typer.echo(
+            f"{src}: skipped {recording.unreadable} messages of payload types this version "
+            "does not know (a newer bearingflock's recording?)",
+            err=True,
+        )
+    if not recording.complete:
+        typer.echo(recording.describe(src), err=True)
+        if not recording.records:
+            raise _fail(f"{src}: nothing to read before its truncated end", EXIT_FAILED)
+    return recording
+
+
 def _off(values: list[str]) -> bool:
     return any(v.strip().lower() in ("none", "off", "") for v in values)
 
@@ -410,10 +430,9 @@ def replay(
     ] = 2.0,
 ) -> None:
     """Republish a recording's Zenoh samples and liveliness tokens, paced by its timestamps."""
-    from groundstation.gcs.record import iter_records
     from groundstation.gcs.replay import replay as run_replay
 
-    _check_recording(src)
+    recording = _read_recording(src)
     if as_fleet is not None:
         _check_fleet(as_fleet)
     with ExitStack() as stack:
@@ -423,7 +442,7 @@ def replay(
             raise _fail("replay publishes on Zenoh: --zenoh none is not possible")
         try:
             stats = run_replay(
-                iter_records(src), session, speed, as_fleet, include_commands,
+                recording.records, session, speed, as_fleet, include_commands,
                 wait_subscribers, stop,
             )  # fmt: skip
         except KeyboardInterrupt:
@@ -444,8 +463,8 @@ def plot(
     from groundstation.gcs.analysis import load_series
     from groundstation.gcs.plot import plot_all
 
-    _check_recording(src)
-    series = load_series(src, fleet)
+    recording = _read_recording(src)
+    series = load_series(src, fleet, recording.records)
     if not series.vehicles:
         raise _fail(f"{src}: no vehicle data for fleet {series.fleet!r}", EXIT_FAILED)
     out.mkdir(parents=True, exist_ok=True)

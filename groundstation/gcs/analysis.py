@@ -16,12 +16,17 @@ pure and vectorized:
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from onboard.geometry import FloatArray, IntArray
+
+if TYPE_CHECKING:
+    from groundstation.gcs.record import Record
 
 NO_INDEX = -1
 
@@ -149,9 +154,12 @@ def rows_at(
 
 
 # --- loading -------------------------------------------------------------------------------------------
-def load_series(path: str | Path, fleet: str | None = None) -> Series:
+def load_series(
+    path: str | Path, fleet: str | None = None, records: Iterable[Record] | None = None
+) -> Series:
     """Decode a recording's statuses, truth and camera bearings into :class:`Series`.
-    ``fleet=None`` takes the first fleet found in the recording."""
+    ``fleet=None`` takes the first fleet found in the recording; ``records``: the recording
+    already read (``record.read_recording``), else ``path`` is read."""
     from groundstation.gcs.record import ZENOH_ENCODING, iter_records
     from groundstation.gcs.zenoh_listener import classify
     from messages.agent import VehicleStatus
@@ -162,7 +170,7 @@ def load_series(path: str | Path, fleet: str | None = None) -> Series:
     truth: dict[int, list[tuple[float, Truth]]] = {}
     cams: dict[int, list[tuple[float, CameraBearings]]] = {}
     t0: int | None = None
-    for rec in iter_records(path):
+    for rec in iter_records(path) if records is None else records:
         if t0 is None:
             t0 = rec.log_time_ns
         if rec.encoding != ZENOH_ENCODING or not rec.topic.startswith("bf/"):

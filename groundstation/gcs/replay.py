@@ -70,7 +70,7 @@ def replay(
             if stop.is_set():
                 break
             if rec.encoding not in (ZENOH_ENCODING, LIVELINESS_ENCODING):
-                stats.skip(rec.encoding)
+                stats.skip(rec.source or rec.encoding)
                 continue
             if not include_commands and is_unsafe(rec.topic):
                 stats.skip("command")

@@ -5,6 +5,7 @@ the simulator's truth and against the headless runner flying the same configurat
 from __future__ import annotations
 
 import pytest
+from pymavlink import mavutil
 
 from groundstation.demo import run_demo
 from groundstation.demo_cli import default_speedup
@@ -36,8 +37,19 @@ rigidity eigenvalue must end within 10% of the truth (headless at 30 ms and 10% 
 graph it converged to the eigenvalue of a smaller graph, 21% low)."""
 
 
-def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path):
+def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path, recording_schemas):
     summary = run_demo(VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, loss=LOSS)
+    # the run's recording opens in Foxglove: every channel schema'd, the team in a 3D scene
+    names, problems = recording_schemas(tmp_path / "recording.mcap")
+    assert summary["recording"] == str(tmp_path / "recording.mcap")
+    assert problems == [] and names["scene/team"] == "foxglove.SceneUpdate", problems[:5]
+    assert {f"{k}/status" for k in range(VEHICLES)} <= {t.split("/", 2)[2] for t in names
+                                                            if t.startswith("bf/")}  # fmt: skip
+    tlog = mavutil.mavlink_connection(str(tmp_path / "recording.tlog"))
+    sysids = set()
+    while (msg := tlog.recv_match(type="HEARTBEAT")) is not None:
+        sysids.add(msg.get_srcSystem())
+    assert sysids == {k + 1 for k in range(VEHICLES)}
     report = {
         k: summary[k] for k in ("time_to_scale_s", "final_scale_error", "final_bearing_error_deg")
     }

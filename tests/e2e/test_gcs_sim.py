@@ -18,10 +18,11 @@ import sys
 import time
 
 import pytest
+from pymavlink import mavutil
 from typer.testing import CliRunner
 
 from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
-from groundstation.gcs.record import iter_records
+from groundstation.gcs.record import iter_records, tlog_path
 from groundstation.gcs_cli import gcs_app
 from sim.launch import start_sim
 from sim.server import free_port_base
@@ -114,7 +115,7 @@ def test_monitor_json_then_fleet_commands_arm_takeoff_stop(sim, tmp_path):
     assert "vehicle 2: OK" in res.output and "vehicle 9: FAIL  mavlink: not heard" in res.output
 
 
-def test_live_table_in_tmux_and_a_recording_plots(sim, tmp_path):
+def test_live_table_in_tmux_and_a_recording_plots(sim, tmp_path, recording_schemas):
     tmux = shutil.which("tmux")
     assert tmux is not None, "tmux is needed (apt-get install tmux)"
     sock = f"gcs-test-{time.monotonic_ns()}"
@@ -150,7 +151,14 @@ def test_live_table_in_tmux_and_a_recording_plots(sim, tmp_path):
     res = gcs(sim, "record", str(out), "--duration", "2.0")
     assert res.exit_code == 0, res.output
     topics = {r.topic for r in iter_records(out)}
-    assert {f"mavlink/{i + 1}" for i in range(N)} <= topics
+    assert {f"mavlink/{i + 1}/HEARTBEAT" for i in range(N)} <= topics
+    names, problems = recording_schemas(out)
+    assert problems == [] and names["scene/team"] == "foxglove.SceneUpdate"
+    tlog = mavutil.mavlink_connection(str(tlog_path(out)))
+    sysids = set()
+    while (msg := tlog.recv_match(type="HEARTBEAT")) is not None:
+        sysids.add(msg.get_srcSystem())
+    assert sysids == {i + 1 for i in range(N)}
     assert {f"bf/eg/{i}/truth" for i in range(N)} <= topics and "bf/eg/sim/clock" in topics
     res = CliRunner().invoke(gcs_app, ["plot", str(out), "--out", str(tmp_path / "plots")])
     assert res.exit_code == 0, res.output

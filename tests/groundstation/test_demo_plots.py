@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from groundstation.demo_plots import plot_demo
+from groundstation.demo_plots import planned_on_final, plot_demo
 
 
 def _series(out: Path, flying: bool) -> None:
@@ -28,6 +28,7 @@ def _series(out: Path, flying: bool) -> None:
         flying=(t > 2.0) if flying else np.zeros_like(t, dtype=bool),
         pairs=np.array([[0, 1]]),
         p_desired_ned=p[-1],
+        lambda_safe=0.2,
     )
 
 
@@ -41,3 +42,18 @@ def test_both_figures_are_written(tmp_path: Path, flying: bool) -> None:
 
 def test_no_series_no_figures(tmp_path: Path) -> None:
     assert plot_demo(tmp_path) == []
+
+
+def test_the_plan_is_drawn_after_the_best_similarity_onto_the_final_formation() -> None:
+    """A team that ends in the plan's shape, 1.56x larger and turned -120 degrees (what bearings
+    leave free), is drawn exactly on the plan: shape error 0."""
+    plan = np.array([[0.0, 0.0, -5.0], [10.0, 0.0, -5.0], [0.0, 6.0, -6.0], [4.0, 4.0, -5.0]])
+    a = np.radians(-120.0)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    final = plan.copy()
+    final[:, :2] = 1.56 * plan[:, :2] @ rot.T + np.array([3.0, -7.0])
+    fit = planned_on_final(plan, final)
+    assert np.allclose(fit["xy"], final[:, :2]) and fit["shape_rms_m"] < 1e-9
+    assert np.isclose(fit["scale"], 1.56) and np.isclose(fit["rotation_deg"], -120.0)
+    final[0, 0] += 1.0  # one vehicle 1 m off: the fit says so
+    assert 0.3 < planned_on_final(plan, final)["shape_rms_m"] < 1.0
