@@ -74,8 +74,13 @@ def sweep(
 ) -> None:
     """Run a scenario over seeds x a parameter grid on a process pool or a Dask cluster; one
     Parquet row per run, a summary per grid point (median, IQR, bootstrap CI)."""
+    import signal
+
     from rich.console import Console
 
+    # Ctrl-C / kill -INT stop the sweep even when a shell started it in the background with
+    # SIGINT ignored: the finished rows are on disk, --resume continues
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     console = Console(stderr=True)
     if target == "plot":
         if directory is None:

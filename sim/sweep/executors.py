@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
@@ -38,6 +39,11 @@ class InlineExecutor(Executor):
         except Exception as e:
             fut.set_exception(e)
         return fut
+
+
+def _ignore_sigint() -> None:
+    """Pool workers leave Ctrl-C to the client, which stops them (no traceback per worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 @dataclass(frozen=True)
@@ -103,7 +109,7 @@ def open_executor(choice: ExecutorChoice) -> Iterator[tuple[Executor, int]]:
     if choice.kind == "processes":
         assert choice.workers is not None
         ctx = multiprocessing.get_context("spawn")  # no fork of the progress bar's thread
-        pool = ProcessPoolExecutor(choice.workers, mp_context=ctx)
+        pool = ProcessPoolExecutor(choice.workers, mp_context=ctx, initializer=_ignore_sigint)
         try:
             yield pool, choice.workers
         finally:

@@ -202,8 +202,17 @@ def test_a_row_is_what_bearingflock_scenario_json_prints(tmp_path: Path) -> None
     _, (row,) = run(spec, tmp_path / "r")
     res = CliRunner().invoke(
         app,
-        ["scenario", "scale-active", "--seed", "4", "--duration", DUR, "--json"]
-        + ["--bearing-noise-deg", "1"],
+        [
+            "scenario",
+            "scale-active",
+            "--seed",
+            "4",
+            "--duration",
+            DUR,
+            "--json",
+            "--bearing-noise-deg",
+            "1",
+        ],
     )
     assert res.exit_code == 0, res.output
     ref = json.loads(res.stdout.strip().splitlines()[-1])
