@@ -12,15 +12,19 @@ README's study), one run per seed. For each executor, measured in one process:
 
 The baseline is ``local`` (every run in this process, no scheduler: its "overhead" is the
 client's own bookkeeping). Automatic batching and one run per task (``--batch 1``) are both
-measured, which shows what batching buys.
+measured, which shows what batching buys. This VM shares its 2 cores and slows down for tens of
+seconds at a time, so the configurations are measured in interleaved rounds (``--rounds``) and
+the table shows each one's median over rounds.
 
-Run: ``python benchmarks/bench_sweep.py [--runs 80] [--quick]`` (needs dask[distributed]).
+Run: ``python benchmarks/bench_sweep.py [--runs 80] [--rounds 3] [--quick]`` (needs
+dask[distributed]).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -43,13 +47,13 @@ def _startup_s(name: str) -> tuple[float, object]:
     return time.perf_counter() - t0, (cm, ex, slots)
 
 
-def measure(name: str, runs: int, batch: int | None, tmp: Path) -> dict[str, float | str]:
+def measure(name: str, runs: int, batch: int | None, tmp: Path, tag: str) -> dict[str, float | str]:
     start_s, (cm, ex, slots) = _startup_s(name)
     try:
         warm = from_cli("scale-active", f"0:{2 * slots - 1}", [], "compiled", DURATION_S)
-        run_sweep(warm, ResultsDir(tmp / f"warm-{name}-{batch}"), ex, slots, batch_size=1)
+        run_sweep(warm, ResultsDir(tmp / f"warm-{name}-{batch}-{tag}"), ex, slots, batch_size=1)
         spec = from_cli("scale-active", f"1000:{1000 + runs - 1}", [], "compiled", DURATION_S)
-        out = ResultsDir(tmp / f"{name}-{batch}")
+        out = ResultsDir(tmp / f"{name}-{batch}-{tag}")
         t0 = time.perf_counter()
         outcome = run_sweep(spec, out, ex, slots, batch_size=batch)
         wall = time.perf_counter() - t0
@@ -75,9 +79,10 @@ def measure(name: str, runs: int, batch: int | None, tmp: Path) -> dict[str, flo
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=80)
-    ap.add_argument("--quick", action="store_true", help="20 runs")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="20 runs, 1 round")
     args = ap.parse_args()
-    runs = 20 if args.quick else args.runs
+    runs, rounds = (20, 1) if args.quick else (args.runs, args.rounds)
     configs = [
         ("local", None),
         ("processes:2", None),
@@ -85,23 +90,35 @@ def main() -> None:
         ("dask:2", None),
         ("dask:2", 1),
     ]
-    results = []
+    samples: dict[tuple[str, int | None], list[dict]] = {c: [] for c in configs}
     with tempfile.TemporaryDirectory() as d:
-        for name, batch in configs:
-            results.append(measure(name, runs, batch, Path(d)))
-            r = results[-1]
-            print(f"  {name} batch {r['batch']}: {r['runs_per_min']:.0f} runs/min", flush=True)
-    base = results[0]["runs_per_min"]
+        for k in range(rounds):
+            for name, batch in configs:
+                r = measure(name, runs, batch, Path(d), str(k))
+                samples[(name, batch)].append(r)
+                print(
+                    f"  round {k + 1}: {name} batch {r['batch']}: {r['runs_per_min']:.0f} "
+                    f"runs/min, run {r['run_s']:.3f} s",
+                    flush=True,
+                )
+
+    def med(c: tuple[str, int | None], key: str) -> float:
+        return statistics.median(float(r[key]) for r in samples[c])
+
+    base = med(configs[0], "runs_per_min")
     print(
-        f"\n{runs} runs of scale-active, compiled engine, {DURATION_S:.0f} s simulated each\n"
+        f"\n{runs} runs of scale-active, compiled engine, {DURATION_S:.0f} s simulated each; "
+        f"median of {rounds} interleaved rounds\n"
         f"{'executor':<13}{'batch':>6}{'start s':>9}{'run s':>8}{'runs/min':>10}"
         f"{'x local':>9}{'overhead ms/run':>17}{'overhead %':>12}"
     )
-    for r in results:
+    for c in configs:
+        name = c[0]
         print(
-            f"{r['executor']:<13}{r['batch']:>6}{r['startup_s']:>9.2f}{r['run_s']:>8.3f}"
-            f"{r['runs_per_min']:>10.0f}{r['runs_per_min'] / base:>9.2f}"  # type: ignore[operator]
-            f"{r['overhead_ms_per_run']:>17.1f}{100 * r['overhead_share']:>11.1f}%"  # type: ignore[operator]
+            f"{name:<13}{samples[c][0]['batch']:>6}{med(c, 'startup_s'):>9.2f}"
+            f"{med(c, 'run_s'):>8.3f}{med(c, 'runs_per_min'):>10.0f}"
+            f"{med(c, 'runs_per_min') / base:>9.2f}{med(c, 'overhead_ms_per_run'):>17.1f}"
+            f"{100 * med(c, 'overhead_share'):>11.1f}%"
         )
 
 
