@@ -10,6 +10,10 @@ README's study), one run per seed. For each executor, measured in one process:
   spent on anything but running scenarios (pickling, scheduling, the result rows, writing
   Parquet, idle slots at the end), and its share of the slots' time.
 
+* scheduler cost per task, measured alone: ``--empty`` tasks that run an empty batch, all
+  submitted at once; cost = wall x slots / tasks. With the median run time this gives the
+  overhead share at a batch size, ``cost / (batch x run s)``, free of the machine's noise.
+
 The baseline is ``local`` (every run in this process, no scheduler: its "overhead" is the
 client's own bookkeeping). Automatic batching and one run per task (``--batch 1``) are both
 measured, which shows what batching buys. This VM shares its 2 cores and slows down for tens of
@@ -32,6 +36,7 @@ from pathlib import Path
 from sim.sweep.driver import auto_batch, run_sweep
 from sim.sweep.executors import open_executor, parse_executor
 from sim.sweep.results import ResultsDir
+from sim.sweep.runs import run_batch
 from sim.sweep.spec import from_cli
 
 DURATION_S = 20.0
@@ -47,9 +52,21 @@ def _startup_s(name: str) -> tuple[float, object]:
     return time.perf_counter() - t0, (cm, ex, slots)
 
 
-def measure(name: str, runs: int, batch: int | None, tmp: Path, tag: str) -> dict[str, float | str]:
+def _task_cost_s(ex, slots: int, tasks: int) -> float:
+    """Seconds of slot time per task for tasks that do nothing (an empty batch)."""
+    t0 = time.perf_counter()
+    futs = [ex.submit(run_batch, []) for _ in range(tasks)]
+    for f in futs:
+        f.result()
+    return (time.perf_counter() - t0) * slots / tasks
+
+
+def measure(
+    name: str, runs: int, batch: int | None, tmp: Path, tag: str, empty: int = 200
+) -> dict[str, float | str]:
     start_s, (cm, ex, slots) = _startup_s(name)
     try:
+        task_s = _task_cost_s(ex, slots, empty)
         warm = from_cli("scale-active", f"0:{2 * slots - 1}", [], "compiled", DURATION_S)
         run_sweep(warm, ResultsDir(tmp / f"warm-{name}-{batch}-{tag}"), ex, slots, batch_size=1)
         spec = from_cli("scale-active", f"1000:{1000 + runs - 1}", [], "compiled", DURATION_S)
@@ -68,6 +85,7 @@ def measure(name: str, runs: int, batch: int | None, tmp: Path, tag: str) -> dic
         "batch": str(batch or auto_batch(runs, slots)),
         "slots": slots,
         "startup_s": start_s,
+        "task_ms": 1000.0 * task_s,
         "wall_s": wall,
         "run_s": work / runs,
         "runs_per_min": 60.0 * runs / wall,
@@ -106,11 +124,14 @@ def main() -> None:
         return statistics.median(float(r[key]) for r in samples[c])
 
     base = med(configs[0], "runs_per_min")
+    run_s = statistics.median(float(r["run_s"]) for rs in samples.values() for r in rs)
     print(
         f"\n{runs} runs of scale-active, compiled engine, {DURATION_S:.0f} s simulated each; "
-        f"median of {rounds} interleaved rounds\n"
+        f"median of {rounds} interleaved rounds; median run {run_s:.3f} s; task/batch: the "
+        f"scheduler cost per task over the batch's work\n"
         f"{'executor':<13}{'batch':>6}{'start s':>9}{'run s':>8}{'runs/min':>10}"
-        f"{'x local':>9}{'overhead ms/run':>17}{'overhead %':>12}"
+        f"{'x local':>9}{'overhead ms/run':>17}{'overhead %':>12}{'task ms':>9}"
+        f"{'task/batch %':>14}"
     )
     for c in configs:
         name = c[0]
@@ -118,7 +139,8 @@ def main() -> None:
             f"{name:<13}{samples[c][0]['batch']:>6}{med(c, 'startup_s'):>9.2f}"
             f"{med(c, 'run_s'):>8.3f}{med(c, 'runs_per_min'):>10.0f}"
             f"{med(c, 'runs_per_min') / base:>9.2f}{med(c, 'overhead_ms_per_run'):>17.1f}"
-            f"{100 * med(c, 'overhead_share'):>11.1f}%"
+            f"{100 * med(c, 'overhead_share'):>11.1f}%{med(c, 'task_ms'):>9.2f}"
+            f"{100 * med(c, 'task_ms') / 1000 / (int(samples[c][0]['batch']) * run_s):>13.2f}%"
         )
 
 
