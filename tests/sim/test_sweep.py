@@ -23,7 +23,7 @@ from sim.sweep.results import ResultsDir
 from sim.sweep.spec import SpecError, from_cli, from_toml, parse_seeds, run_seed
 from sim.sweep.summary import bootstrap_median_ci, quantile, summarize_points
 
-DUR = "0.3"
+DUR = "0.2"
 VOLATILE = ("wall_s", "cpu_s", "worker", "git_commit")
 
 
@@ -308,7 +308,7 @@ def test_bad_command_lines_are_clear_errors(tmp_path: Path) -> None:
 
 def test_plot_draws_cdf_bands_and_a_heat_map_for_two_parameters(tmp_path: Path) -> None:
     out = tmp_path / "r"
-    spec = small_spec("0:1", ["loss=0,0.2", "bearing_noise_deg=0,1"])
+    spec = small_spec("0", ["loss=0,0.2", "bearing_noise_deg=0,1"])
     run(spec, out)
     res = CliRunner().invoke(app, ["sweep", "plot", str(out)])
     assert res.exit_code == 0, res.output
@@ -318,3 +318,23 @@ def test_plot_draws_cdf_bands_and_a_heat_map_for_two_parameters(tmp_path: Path) 
     assert "lambda_bar_mean_vs_loss.png" in names
     assert "lambda_bar_mean_vs_bearing_noise_deg.png" in names
     assert all((out / "plots" / n).stat().st_size > 1000 for n in names)
+
+
+def test_rigidity_rows_are_the_scenario_json_and_agent_gains_reach_the_agents(
+    tmp_path: Path,
+) -> None:
+    spec = from_cli(
+        "rigidity-tracking", "1", ["rigidity_eigen=distributed,centralized"], "cores", 0.2
+    )
+    _, (dist, central) = run(spec, tmp_path / "r")
+    res = CliRunner().invoke(
+        app, ["scenario", "rigidity-tracking", "--seed", "1", "--duration", "0.2", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    ref = json.loads(res.stdout.strip().splitlines()[-1])
+    metrics = json.loads(dist["metrics"])
+    assert set(metrics) == set(ref) - {"scenario", "seed", "duration_s"}
+    assert {m: dist[m] for m in metrics} == {m: ref[m] for m in metrics}
+    # the centralized eigenpair is another estimate of the same true trajectory's eigenvalue
+    assert central["distributed_eigen_error_p95"] != dist["distributed_eigen_error_p95"]
+    assert central["params"] == '{"rigidity_eigen": "centralized"}'
