@@ -102,6 +102,10 @@ def sweep(
 
                 spec = replace(
                     spec,
+                    # --duration wins over the file's, cases' included
+                    cases=spec.cases
+                    if duration is None
+                    else tuple(replace(c, duration_s=None) for c in spec.cases),
                     duration_s=duration or spec.duration_s,
                     timeout_s=timeout or spec.timeout_s,
                     seed_root=spec.seed_root if seed_root is None else seed_root,

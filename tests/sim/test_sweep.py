@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -338,3 +341,29 @@ def test_rigidity_rows_are_the_scenario_json_and_agent_gains_reach_the_agents(
     # the centralized eigenpair is another estimate of the same true trajectory's eigenvalue
     assert central["distributed_eigen_error_p95"] != dist["distributed_eigen_error_p95"]
     assert central["params"] == '{"rigidity_eigen": "centralized"}'
+
+
+def test_a_sweep_file_with_duration_on_the_command_line_and_no_dask_import(
+    tmp_path: Path,
+) -> None:
+    """dask is imported only for the dask executors; --duration overrides a case's duration."""
+    f = tmp_path / "s.toml"
+    f.write_text('seeds = "0"\n[[case]]\nscenario = "scale-active"\nduration = 30.0\n')
+    code = (
+        "import sys\n"
+        "from typer.testing import CliRunner\n"
+        "from groundstation.cli import app\n"
+        f"r = CliRunner().invoke(app, ['sweep', {str(f)!r}, '--duration', '0.2', '--executor',"
+        f" 'local', '--out', {str(tmp_path / 'r')!r}, '--json'])\n"
+        "assert r.exit_code == 0, r.output\n"
+        "print(r.stdout.strip().splitlines()[-1])\n"
+        "print('distributed' in sys.modules, 'dask' in sys.modules)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[2])}
+    env.pop("DASK_SCHEDULER_ADDRESS", None)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert res.returncode == 0, res.stderr
+    doc_line, imported = res.stdout.strip().splitlines()[-2:]
+    assert imported == "False False"
+    (summary,) = json.loads(doc_line)["summary"]
+    assert summary["duration_s"] == 0.2
