@@ -107,13 +107,17 @@ def plot_heatmap(summaries: list[dict], metric: str, px: str, py: str, out_dir: 
             m if math.isfinite(m) else np.nan
         )
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
+    cmap = plt.get_cmap("viridis").copy()
+    cmap.set_bad("lightgrey")  # "never" (an infinite median) or no runs
+    im = ax.imshow(np.ma.masked_invalid(grid), origin="lower", aspect="auto", cmap=cmap)
     ax.set_xticks(range(len(xs)), [str(v) for v in xs])
     ax.set_yticks(range(len(ys)), [str(v) for v in ys])
     ax.set_xlabel(px)
     ax.set_ylabel(py)
     for (i, j), v in np.ndenumerate(grid):
-        ax.text(j, i, "never" if np.isnan(v) else f"{v:.3g}", ha="center", va="center", color="w")
+        never = bool(np.isnan(v))
+        text = "never" if never else f"{v:.3g}"
+        ax.text(j, i, text, ha="center", va="center", color="k" if never else "w")
     fig.colorbar(im, ax=ax, label=f"median {metric}")
     path = out_dir / f"heatmap_{metric}.png"
     fig.tight_layout()
