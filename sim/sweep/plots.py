@@ -107,8 +107,7 @@ def plot_heatmap(summaries: list[dict], metric: str, px: str, py: str, out_dir: 
             m if math.isfinite(m) else np.nan
         )
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    cmap = plt.get_cmap("viridis").copy()
-    cmap.set_bad("lightgrey")  # "never" (an infinite median) or no runs
+    cmap = plt.get_cmap("viridis").with_extremes(bad="lightgrey")  # "never" or no runs
     im = ax.imshow(np.ma.masked_invalid(grid), origin="lower", aspect="auto", cmap=cmap)
     ax.set_xticks(range(len(xs)), [str(v) for v in xs])
     ax.set_yticks(range(len(ys)), [str(v) for v in ys])
