@@ -18,6 +18,7 @@ from groundstation.vision_cli import vision_app
 from onboard.daemon.cli import agent
 from sim.cli import sim
 from sim.scenario_cli import scenario
+from sim.sweep.cli import sweep
 
 app = typer.Typer(
     name="bearingflock",
@@ -32,6 +33,7 @@ app.command("demo")(demo)
 app.command("plan")(plan)
 app.command("scenario")(scenario)
 app.command("sim")(sim)
+app.command("sweep")(sweep)
 app.add_typer(gcs_app, name="gcs")
 app.add_typer(vision_app, name="vision")
 

@@ -151,15 +151,17 @@ def run_scenario(
     duration_s: float = 20.0,
     progress=None,
     engine: str = "cores",
+    config_overrides: dict[str, object] | None = None,
     **runner_options: object,
 ) -> Recording:
-    """Run scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`.
+    """Run scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`,
+    ``config_overrides`` to every vehicle's :class:`AgentConfig` (gains; ``bearingflock sweep``).
 
     ``engine``: ``"cores"`` steps one :class:`onboard.agent.AgentCore` per vehicle (the
     reference); ``"compiled"`` runs :mod:`sim.compiled_runner` (the same team, compiled)."""
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
-    configs = agent_configs(name, seed)
+    configs = agent_configs(name, seed, **(config_overrides or {}))
     rc = RunnerConfig(duration_s=duration_s, seed=seed, **runner_options)  # type: ignore[arg-type]
     if engine == "compiled":
         from sim.compiled_runner import run_compiled
