@@ -6,7 +6,7 @@
   agent's estimate) with the maintenance's safe level ``lambda_safe``. The time before the
   mission starts (connect, arm, take-off) is shaded and named.
 * ``demo_trajectories.png``: the true paths, and the planned formation drawn after the best
-  similarity that maps it onto the final positions (Umeyama 1991, ``analysis.similarity_2d``):
+  similarity that maps it onto the final positions (Umeyama 1991, ``similarity.similarity_2d``):
   bearings fix a formation only up to translation, scale and heading, so that fit, and the
   shape error left after it, is what says whether the team reached the plan.
 """
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from groundstation.demo_verdict import SCALE_CRITERION
-from groundstation.gcs.analysis import similarity_2d
+from groundstation.gcs.similarity import similarity_2d
 
 PRE_MISSION = "before mission start: connect, arm, take off"
 

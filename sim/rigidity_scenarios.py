@@ -42,7 +42,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -397,21 +396,3 @@ def run_rigidity_scenario(
         lambda_safe=cfg.lambda_safe,
         warmup_s=cfg.rigidity_warmup_s,
     )
-
-
-def scenario_result(
-    name: str,
-    seed: int,
-    duration_s: float,
-    plot_dir: Path | None,
-    progress: Callable[[float], None] | None = None,
-    **runner_options: object,
-) -> dict[str, object]:
-    """What ``bearingflock scenario NAME --json`` prints for a rigidity scenario."""
-    rr = run_rigidity_scenario(name, seed, duration_s, progress, **runner_options)
-    result: dict[str, object] = {"duration_s": duration_s, **rr.summary()}
-    if plot_dir is not None:
-        from sim.rigidity_plots import plot_rigidity
-
-        result["plots"] = [str(p) for p in plot_rigidity(rr, plot_dir)]
-    return result

@@ -78,13 +78,12 @@ def scenario(
         note = "(compiled engine: the first run compiles it, about 30 s)"
         task = progress.add_task(note if engine == "compiled" else "", total=1.0)
         if name in RIGIDITY_SCENARIOS:
-            from sim.rigidity_scenarios import scenario_result
+            from sim.rigidity_scenarios import run_rigidity_scenario
 
-            result = scenario_result(
+            rr = run_rigidity_scenario(
                 name,
                 seed,
                 duration,
-                plot,
                 progress=lambda f: progress.update(task, completed=f),
                 bearing_noise_rad=math.radians(bearing_noise_deg),
                 loss=loss,
@@ -101,7 +100,13 @@ def scenario(
                 latency_s=latency,
                 engine=engine,
             )
-    if name not in RIGIDITY_SCENARIOS:
+    if name in RIGIDITY_SCENARIOS:
+        result: dict[str, object] = {"duration_s": duration, **rr.summary()}
+        if plot is not None:
+            from sim.rigidity_plots import plot_rigidity
+
+            result["plots"] = [str(p) for p in plot_rigidity(rr, plot)]
+    else:
         result = {
             "scenario": name,
             "seed": seed,

@@ -10,8 +10,8 @@ pure and vectorized:
 * :func:`bearing_errors_rad` — the angle between a measured body-frame bearing ``beta_ij`` and
   the one the estimates predict, ``R_z(psihat_i)^T (phat_j - phat_i) / |phat_j - phat_i|``
   (the R3 x S1 model of paper 000; invariant to the shared frame's translation, yaw and scale);
-* :func:`similarity_2d` — the least-squares similarity (Umeyama 1991) that maps estimated
-  horizontal positions onto the truth, to draw both trajectories on one set of axes.
+* the least-squares similarity that maps estimated horizontal positions onto the truth, to draw
+  both trajectories on one set of axes, is :func:`groundstation.gcs.similarity.similarity_2d`.
 """
 
 from __future__ import annotations
@@ -124,24 +124,6 @@ def bearing_errors_rad(
     """Angle between each measured bearing of ``cam`` and the predicted one, given per-row
     positions of the camera's vehicle and of its target (and the camera vehicle's yaw)."""
     return angle_between_rad(cam.beta_body, predicted_bearings_body(p_i_ned, yaw_i_rad, p_j_ned))
-
-
-def similarity_2d(src: FloatArray, dst: FloatArray) -> tuple[float, FloatArray, FloatArray]:
-    """Scale ``s``, rotation ``R`` (2x2) and translation ``t`` minimizing
-    ``sum |dst_k - (s R src_k + t)|^2`` (Umeyama 1991, eq. 40-42); needs >= 2 distinct points."""
-    src = np.asarray(src, dtype=float)
-    dst = np.asarray(dst, dtype=float)
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    xs, xd = src - mu_s, dst - mu_d
-    var_s = np.sum(xs**2) / len(src)
-    if var_s <= 0:
-        raise ValueError("similarity_2d needs at least two distinct source points")
-    cov = xd.T @ xs / len(src)
-    u, sig, vt = np.linalg.svd(cov)
-    d = np.diag([1.0, np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0])
-    r = u @ d @ vt
-    s = float(np.trace(np.diag(sig) @ d) / var_s)
-    return s, r, mu_d - s * r @ mu_s
 
 
 def rows_at(

@@ -10,7 +10,7 @@ names, types and nesting as Foxglove's published ones):
   ``ned`` one frame per vehicle: ``truth/<id>`` (the simulator's truth, when recorded) and
   ``estimate/<id>`` (the agent's own ``(phat_i, psihat_i)``). Bearings fix the team only up to
   translation, scale and heading (paper 000), so with truth the estimates are drawn after the
-  best similarity that maps them onto it (``analysis.similarity_2d``, Umeyama 1991); without
+  best similarity that maps them onto it (``similarity.similarity_2d``, Umeyama 1991); without
   truth they are drawn as estimated.
 * :data:`SCENE_TOPIC` (``foxglove.SceneUpdate``): a sphere and a label per vehicle (truth: blue,
   estimate: orange) and the sensing edges, one line per camera detection ``i -> j`` seen in the
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from groundstation.gcs.analysis import similarity_2d
+from groundstation.gcs.similarity import similarity_2d
 from messages.agent import VehicleStatus
 from messages.codec import Payload
 from messages.sim import CameraBearings, Truth

@@ -10,7 +10,7 @@ Five files, each always written (a panel without data says so):
 * ``bearing_errors.png`` — angle between measured and estimate-predicted bearings per camera
   (and, with truth, between measured and true ones: the camera noise);
 * ``trajectories.png`` — horizontal tracks: truth, and the estimates mapped onto it by the
-  best similarity (:func:`~groundstation.gcs.analysis.similarity_2d`) when truth is recorded.
+  best similarity (:func:`~groundstation.gcs.similarity.similarity_2d`) when truth is recorded.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from groundstation.gcs.analysis import (
     bearing_errors_rad,
     inverse_distance_error,
     rows_at,
-    similarity_2d,
 )
+from groundstation.gcs.similarity import similarity_2d
 
 SCALE_THRESHOLD_INV_M = 0.01
 
