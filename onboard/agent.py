@@ -616,11 +616,13 @@ class AgentCore:
 
     def chi_hat(self, j: int) -> float | None:
         """Inverse-distance estimate on reciprocal edge ``(self, j)`` now: an own observer's carried
-        to the core's time (:meth:`SfmEdge.chi_at`), a received one as its sender carried it."""
+        to the core's time (:meth:`SfmEdge.chi_at`), a received one as its sender carried it,
+        while it is fresh (``peer_timeout_s``: a silent neighbour's last estimate is not kept)."""
+        t = self._t or 0.0
         if j in self.sfm:
-            return self.sfm[j].chi_at(self._t or 0.0, self.config.peer_timeout_s)
+            return self.sfm[j].chi_at(t, self.config.peer_timeout_s)
         m = self._sfm_in.get(j)
-        return None if m is None else m[1]
+        return None if m is None or not self._fresh(m[0], t) else m[1]
 
     def _localize(self, dt: float, t_s: float, u_i: Vec3, w_i: float) -> None:
         out_edges = []
@@ -821,7 +823,15 @@ class AgentCore:
         if not self.paper000 or not self.reciprocal or self.e_index >= cfg.e_low:
             return False
         folds = [
-            self.sfm[j].e_folds if j in self.sfm else self._e_folds_in.get(j, 0.0)
+            self.sfm[j].e_folds if j in self.sfm else self._received_e_folds(j)
             for j in self.reciprocal
         ]
         return min(folds) >= cfg.converged_e_folds
+
+    def _received_e_folds(self, j: int) -> float:
+        """E-foldings of edge ``(j, self)`` as ``j`` last shared them; 0 once its SfM estimate
+        is stale (a neighbour that went silent no longer vouches for the scale)."""
+        m = self._sfm_in.get(j)
+        if m is None or not self._fresh(m[0], self._t or 0.0):
+            return 0.0
+        return self._e_folds_in.get(j, 0.0)

@@ -56,6 +56,8 @@ MAX_GAP_S = 0.5
 """A longer gap between two ticks is skipped rather than integrated."""
 PEER_LOST_HOLD_S = 2.0
 """A peer without a liveliness token for this long is out of the graph."""
+STEP_ERROR_ALARM_S = 1.0
+"""After an exception escaped a core tick the vehicle holds with alarm ``step_error`` this long."""
 
 
 def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
@@ -165,6 +167,7 @@ class AgentDaemon:
         self._status_seq = 0
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
+        self._step_error_s = -math.inf
 
     # ------------------------------------------------------------------ flight thread
     def _flight(self) -> None:
@@ -346,23 +349,44 @@ class AgentDaemon:
             now_s = self._now()
             if now_s is None or not tel.connected:
                 continue
-            self._handle_commands()
-            self._update_peers(now_s)
-            t_step = time.perf_counter()
-            setpoint, out = self._step_core(now_s, tel)
-            self.metrics.core_step_s.append(time.perf_counter() - t_step)
-            outbox.extend(out)
             step += 1
-            if step % publish_every == 0:
-                self.peers.publish(outbox)
+            try:
+                self._handle_commands()
+                self._update_peers(now_s)
+                t_step = time.perf_counter()
+                setpoint, out = self._step_core(now_s, tel)
+                self.metrics.core_step_s.append(time.perf_counter() - t_step)
+                outbox.extend(out)
+                if step % publish_every == 0:
+                    self.peers.publish(outbox)
+                    outbox = []
+                self._alarms = self._fly(now_s, tel, setpoint)
+            except Exception as exc:  # one bad step must never end the daemon (issue 23)
                 outbox = []
-            self._alarms = self._fly(now_s, tel, setpoint)
+                self._step_failed("step_exception", now_s, exc)
             if step % status_every == 0:
-                status = self._status(now_s, tel)
-                self.peers.publish_status(status)
-                if self.on_status is not None:
-                    self.on_status(status)
+                try:
+                    status = self._status(now_s, tel)
+                    self.peers.publish_status(status)
+                    if self.on_status is not None:
+                        self.on_status(status)
+                except Exception as exc:
+                    self._step_failed("status_exception", now_s, exc)
         self._shutdown()
+
+    def _step_failed(self, reason: str, now_s: float, exc: Exception) -> None:
+        """An exception escaped one tick: count it (``dropped``), log the first traceback, hold
+        (zero setpoint) and raise the ``step_error`` alarm for :data:`STEP_ERROR_ALARM_S`."""
+        if reason not in self.drops.snapshot():
+            log.error("%s in the core loop (holding; logged once)", reason, exc_info=exc)
+        self.drops.drop(reason, f"{type(exc).__name__}: {exc}")
+        self._step_error_s = now_s
+        try:
+            self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+        except Exception:  # the link itself failed: nothing more to do this tick
+            log.debug("zero setpoint after a failed step failed too", exc_info=True)
+        if "step_error" not in self._alarms:
+            self._alarms = [*self._alarms, "step_error"]
 
     def _tick_period_s(self) -> float:
         """Wall seconds between core ticks: the configured rates are per second of the daemon's
@@ -412,6 +436,8 @@ class AgentDaemon:
             alarms.append("autopilot_stale")
         if self.bearings.age_s(now_s) > c.limits.stale_s:
             alarms.append("bearings_stale")
+        if now_s - self._step_error_s <= STEP_ERROR_ALARM_S:
+            alarms.append("step_error")
         for event in self.link.events():
             if event.kind == "stream_stopped" and self.state.get() == "flying":
                 self.state.set("pilot", event.detail)
@@ -423,7 +449,11 @@ class AgentDaemon:
             alarms.append("estimate_diverging")
         if phase == "flying":
             safe = finite and not (
-                tel.stale or skewed or "rigidity_lost" in alarms or "bearings_stale" in alarms
+                tel.stale
+                or skewed
+                or "rigidity_lost" in alarms
+                or "bearings_stale" in alarms
+                or "step_error" in alarms
             )
             if safe:
                 v = setpoint.v_body
