@@ -80,3 +80,9 @@ SpeedVec3 = tuple[Speed, Speed, Speed]
 PositionVec3 = tuple[Position, Position, Position]
 Bearing3 = tuple[BearingComponent, BearingComponent, BearingComponent]
 IdList = Annotated[list[AgentId], msgspec.Meta(max_length=LIST_MAX)]
+
+
+def stamp_ahead(stamp_s: float, now_s: float | None) -> bool:
+    """Whether a sender's ``stamp_s`` is further ahead of the receiver's clock ``now_s`` than
+    :data:`STAMP_FUTURE_MAX_S` (``False`` while the receiver's clock is unknown)."""
+    return now_s is not None and stamp_s > now_s + STAMP_FUTURE_MAX_S

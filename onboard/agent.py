@@ -41,6 +41,7 @@ import numpy as np
 
 from messages.agent import AgentStatus, OwnMeasurements, Setpoint
 from messages.codec import Payload
+from messages.limits import STAMP_FUTURE_MAX_S, stamp_ahead
 from messages.peer import (
     BearingShare,
     ConsensusState,
@@ -336,6 +337,9 @@ class AgentCore:
         if route is None:
             self._drop("unknown_type")
             return
+        if stamp_ahead(msg.stamp_s, t_s):  # "the newest by stamp" would keep it for good
+            self._drop("future_stamp")
+            return
         self._heard[j] = t_s
         route[0](j, msg)
 
@@ -377,12 +381,18 @@ class AgentCore:
             self._drop("malformed")
             return
         table = self._lam_table
+        ahead = False
         for a, b, lam, stamp in zip(
             msg.first, msg.second, msg.excitation, msg.stamps_s, strict=True
         ):
+            if stamp > msg.stamp_s + STAMP_FUTURE_MAX_S:  # measured after it was sent
+                ahead = True
+                continue
             prev = table.get((a, b))
             if prev is None or stamp > prev[0]:
                 table[(a, b)] = (stamp, lam)
+        if ahead:
+            self._drop("future_stamp")
 
     def _on_consensus(self, j: int, msg: ConsensusState) -> None:
         if not len(msg.names) == len(msg.x) == len(msg.z):
@@ -400,6 +410,29 @@ class AgentCore:
     def _fresh(self, stamp_s: float, t_s: float) -> bool:
         return t_s - stamp_s <= self.config.peer_timeout_s
 
+    def _forget_time(self) -> None:
+        """Resynchronize after the clock went back by more than
+        :data:`messages.limits.STAMP_FUTURE_MAX_S` (a restarted simulator, a stepped wall
+        clock): everything kept "newest by stamp" now lies in the future and would never be
+        replaced, so the stamped peer data, histories, frames and relative yaws are dropped and
+        rebuilt from the next samples. Estimates (``phat``, ``chihat``, consensus) are kept."""
+        cfg = self.config
+        self._own_hist = SignalHistory(angle_index=4)
+        self._motion_hist = {j: SignalHistory(angle_index=4) for j in self.running}
+        self._sfm_t.clear()
+        for frames in self._sfm_frames.values():
+            frames.clear()
+        for edge in self.sfm.values():
+            edge.resync()
+            edge.last_frame_s = edge.t_s = -math.inf
+            edge.window = WindowAverage(cfg.e_window_s)
+        self.yaw_edges = {j: RelativeYawEdge() for j in self.reciprocal}
+        for table in (self._motion, self._loc, self._beta_in, self._sfm_in, self._e_folds_in,
+                      self._cons_in, self._heard, self._lam_table, self._beta_out):  # fmt: skip
+            table.clear()
+        self._last_frame_s = -math.inf
+        self._rigidity_t = None
+
     # ----------------------------------------------------------------- step
     def step(
         self, t_s: float, own: OwnMeasurements, inbox: Iterable[Payload] = ()
@@ -409,6 +442,8 @@ class AgentCore:
         dt = 0.0 if self._t is None else t_s - self._t
         if dt < 0.0:
             self._drop("time_backwards")
+            if dt < -STAMP_FUTURE_MAX_S:  # the clock was reset (a restarted simulator)
+                self._forget_time()
             dt = 0.0
         self._t = t_s
         for msg in inbox:
@@ -523,6 +558,9 @@ class AgentCore:
         newest = self._last_frame_s
         for b in own.bearings:
             if b.stamp_s <= self._last_frame_s or b.target not in self.out_targets:
+                continue
+            if stamp_ahead(b.stamp_s, own.t_s):  # would blind the camera for good
+                self._drop("future_stamp")
                 continue
             newest = max(newest, b.stamp_s)  # a bad detection is counted once, not every step
             try:

@@ -164,7 +164,12 @@ def agent(
     capture: DeviceCapture | None = None
     if bearings == "camera":
         source = CameraImageSource(
-            agent_id, pipelines, range(fleet.n), drops, _attitude(link, clock, c.clock)
+            agent_id,
+            pipelines,
+            range(fleet.n),
+            drops,
+            _attitude(link, clock, c.clock),
+            clock=clock.now,
         )
         device = camera_device if camera_device is not None else c.camera.device
         if device:
@@ -176,7 +181,7 @@ def agent(
         else:
             source.subscribe(peers)
     else:
-        source = SimCameraSource(peers, drops)
+        source = SimCameraSource(peers, drops, clock.now)
     daemon = AgentDaemon(fleet, agent_id, link, peers, source, clock, drops, url, on_status)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: daemon.stop_event.set())

@@ -5,10 +5,15 @@ from __future__ import annotations
 
 import math
 
-from messages.agent import OwnMeasurements
+import msgspec
+
+from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
-from messages.peer import PeerPayload, SfmEstimate
+from messages.peer import BearingShare, ExcitationTable, MotionShare, PeerPayload, SfmEstimate
+from messages.sim import CameraBearings
 from onboard.agent import AgentConfig, AgentCore
+from onboard.daemon.bearings import SimCameraSource
+from onboard.daemon.peers import DropCounter
 from onboard.estimation.sfm_observer import predict_bearing
 
 TRIANGLE = ((0, 1), (1, 0), (1, 2), (2, 1), (0, 2), (2, 0))
@@ -57,3 +62,98 @@ def test_a_received_sfm_estimate_expires():
     assert 0 not in c.status().chi_hat_inv_m
     assert c._received_e_folds(0) == 0.0 and not c.scale_converged()
     assert all(math.isfinite(x) for x in c.status().p_hat_ned)
+
+
+# ---------------------------------------------------------------- defect 2: future stamps
+
+
+def motion(sender: int, stamp_s: float, seq: int = 0) -> MotionShare:
+    return MotionShare(
+        sender=sender, seq=seq, stamp_s=stamp_s, v_body=(0.1, 0.0, 0.0), yaw_rate_rad_s=0.0,
+        yaw_rad=0.5,
+    )  # fmt: skip
+
+
+def test_one_future_stamped_peer_sample_does_not_freeze_peer_state():
+    c = core(1)  # runs the SfM observer of edge (1, 2): agent 2's motion history matters
+    t = 1.0
+    c.step(t, own(t), [wire(motion(2, t))])
+    future = wire(motion(2, t + 1e6))
+    bearings = wire(BearingShare(sender=2, stamp_s=t + 1e6, yaw_rad=0.0, targets=[1],
+                                 beta_body=[(1.0, 0.0, 0.0)]))  # fmt: skip
+    table = wire(ExcitationTable(sender=2, stamp_s=t, first=[2], second=[0], excitation=[5.0],
+                                 stamps_s=[t + 1e6]))  # fmt: skip
+    c.step(t + 0.01, own(t + 0.01), [future, bearings, table])
+    for k in range(2, 50):
+        t_k = t + 0.01 * k
+        c.step(t_k, own(t_k), [wire(motion(2, t_k))])
+        assert c._motion_hist[2].newest_s == t_k  # real samples keep coming in
+    assert c.dropped["future_stamp"] == 3
+    assert 2 not in c._beta_in and (2, 0) not in c._lam_table
+
+
+def test_one_future_stamped_camera_frame_does_not_blind_the_core():
+    c = core(1)
+    beta = (1.0, 0.0, 0.0)
+
+    def frame(t_s: float, stamp_s: float) -> OwnMeasurements:
+        b = (BearingMeasurement(0, beta, stamp_s), BearingMeasurement(2, beta, stamp_s))
+        return msgspec.structs.replace(own(t_s), bearings=b)
+
+    _, out = c.step(1.0, frame(1.0, 1e6))
+    assert not [p for p in out if isinstance(p, BearingShare)] and c.dropped["future_stamp"] == 2
+    _, out = c.step(1.02, frame(1.02, 1.01))
+    assert [p.stamp_s for p in out if isinstance(p, BearingShare)] == [1.01]
+
+
+class _Link:
+    """What :class:`SimCameraSource` needs of a peer link: its id, the fleet's ids, subscribe."""
+
+    id, known, fleet = 1, frozenset({0, 1, 2}), "t"
+
+    def subscribe(self, key_expr, handler):
+        self.handler = handler
+
+
+class _Sample:
+    """A Zenoh sample as the handler reads it (``sample.payload.to_bytes()``)."""
+
+    def __init__(self, msg) -> None:
+        self.payload, self.data = self, encode(msg)
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+_sample = _Sample
+
+
+def test_sim_camera_drops_future_frames_and_bearings_stale_can_fire():
+    now = [10.0]
+    link, drops = _Link(), DropCounter()
+    src = SimCameraSource(link, drops, lambda: now[0])
+    frame = lambda stamp: CameraBearings(  # noqa: E731
+        sender=1, stamp_s=stamp, targets=[0], beta_body=[(1.0, 0.0, 0.0)]
+    )
+    link.handler(_sample(frame(10.0 + 1e6)))
+    assert src.poll() is None and drops.snapshot() == {"camera_future_stamp": 1}
+    link.handler(_sample(frame(10.0)))
+    assert src.poll()[0].stamp_s == 10.0
+    now[0] = 10.5  # a frame within the allowed skew is fresh, never of negative age
+    link.handler(_sample(frame(11.0)))
+    assert src.poll()[0].stamp_s == 11.0 and src.age_s(now[0]) == 0.0
+    assert src.age_s(13.0) == 2.0  # and it ages: bearings_stale fires once stale_s passes
+    now[0] = 0.2  # the simulator restarted: the frame "newest by stamp" lies in the future
+    link.handler(_sample(frame(0.2)))
+    assert src.poll()[0].stamp_s == 0.2
+
+
+def test_a_clock_reset_rebuilds_the_stamped_peer_state():
+    c = core(1)
+    for k in range(100):
+        t_k = 100.0 + 0.01 * k
+        c.step(t_k, own(t_k), [wire(motion(2, t_k))])
+    c.step(0.5, own(0.5), [wire(motion(2, 0.5))])  # restarted simulator: time starts again
+    assert c.dropped["time_backwards"] == 1
+    c.step(0.51, own(0.51), [wire(motion(2, 0.51))])
+    assert c._motion_hist[2].newest_s == 0.51 and c._own_hist.newest_s == 0.51
