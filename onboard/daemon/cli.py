@@ -67,12 +67,12 @@ def agent(
     import msgspec
 
     from messages.rigidity import RIGIDITY_KINDS
-    from messages.sim import SimClock, clock_key
+    from messages.sim import clock_key
     from onboard.autopilot import open_link
     from onboard.autopilot.base import LinkConfig
     from onboard.daemon.bearings import SimCameraSource
     from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
-    from onboard.daemon.clock import OffsetClock, SimClockFollower, WallClock
+    from onboard.daemon.clock import OffsetClock, SimClockFollower, WallClock, sim_clock_handler
     from onboard.daemon.config import ConfigError, load_fleet
     from onboard.daemon.loop import AgentDaemon, agent_config
     from onboard.daemon.peers import DropCounter, PeerLink
@@ -113,17 +113,8 @@ def agent(
         listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
     )  # fmt: skip
     if c.clock == "sim":
-        follower = SimClockFollower()
-
-        def on_clock(sample: object) -> None:
-            try:
-                msg = msgspec.msgpack.decode(sample.payload.to_bytes(), type=SimClock)  # type: ignore[attr-defined]
-            except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-                drops.drop("clock_malformed", str(exc))
-                return
-            follower.update(msg.t_s, msg.speedup, msg.lockstep)
-
-        peers.subscribe(clock_key(c.fleet), on_clock)
+        follower = SimClockFollower(drop=drops.drop)
+        peers.subscribe(clock_key(c.fleet), sim_clock_handler(follower, drops.drop))
         clock = follower
         # The simulator's autopilots send a heartbeat per *simulated* second: slower than real
         # time they arrive 1/speedup wall seconds apart, and a wall-clock heartbeat timeout would

@@ -438,6 +438,9 @@ class AgentDaemon:
             alarms.append("bearings_stale")
         if now_s - self._step_error_s <= STEP_ERROR_ALARM_S:
             alarms.append("step_error")
+        clock_fault = getattr(self.clock, "fault", None)
+        if clock_fault is not None and (fault := clock_fault()) is not None:
+            alarms.append(fault)  # clock_jump / clock_resync (onboard.daemon.clock)
         for event in self.link.events():
             if event.kind == "stream_stopped" and self.state.get() == "flying":
                 self.state.set("pilot", event.detail)
