@@ -68,6 +68,10 @@ intervals between samples are integrated in equal sub-steps."""
 MAX_ODOMETRY_GAP_S = 0.25
 """Longest gap between two own (or a peer's) odometry samples the SfM observers integrate across
 (an autopilot streams 20-50 Hz); across a longer one they resynchronize after it."""
+CONSENSUS_NAMES = frozenset({"e_index", "p_bar", "dlam_dwl", "w_l"})
+"""The quantities agents run consensus on (:class:`messages.peer.ConsensusState` names): any
+other name from a neighbour is counted (``unknown_name``) and dropped, so a neighbour cannot
+grow a receiver's tables (issue 23: 45,000 names per payload took a daemon to 650 MB)."""
 Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
 
 
@@ -308,6 +312,9 @@ class AgentCore:
         self._seq = 0
         self.dropped: dict[str, int] = {}
         self._neighbour_set = frozenset(self.neighbours)
+        # the excitation table's keys: the fleet's reciprocal edges, run by their lower id
+        edges = set(cfg.edges)
+        self._known_edges = frozenset((i, j) for i, j in edges if i < j and (j, i) in edges)
         rigidity_senders = (
             self._neighbour_set if self.rigidity is None else self.rigidity_neighbours
         )
@@ -380,11 +387,14 @@ class AgentCore:
         if not (len(msg.second) == len(msg.excitation) == len(msg.stamps_s) == n):
             self._drop("malformed")
             return
-        table = self._lam_table
+        table, known = self._lam_table, self._known_edges
         ahead = False
         for a, b, lam, stamp in zip(
             msg.first, msg.second, msg.excitation, msg.stamps_s, strict=True
         ):
+            if (a, b) not in known:  # only the fleet's edges: the table stays bounded
+                self._drop("unknown_edge")
+                continue
             if stamp > msg.stamp_s + STAMP_FUTURE_MAX_S:  # measured after it was sent
                 ahead = True
                 continue
@@ -399,6 +409,9 @@ class AgentCore:
             self._drop("malformed")
             return
         for name, x, z in zip(msg.names, msg.x, msg.z, strict=True):
+            if name not in CONSENSUS_NAMES:
+                self._drop("unknown_name")
+                continue
             self._cons_in.setdefault(name, {})[j] = (msg.stamp_s, x, z)
 
     def _on_rigidity(self, j: int, msg: Payload) -> None:

@@ -9,7 +9,14 @@ import msgspec
 
 from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
-from messages.peer import BearingShare, ExcitationTable, MotionShare, PeerPayload, SfmEstimate
+from messages.peer import (
+    BearingShare,
+    ConsensusState,
+    ExcitationTable,
+    MotionShare,
+    PeerPayload,
+    SfmEstimate,
+)
 from messages.sim import CameraBearings
 from onboard.agent import AgentConfig, AgentCore
 from onboard.daemon.bearings import SimCameraSource
@@ -81,7 +88,7 @@ def test_one_future_stamped_peer_sample_does_not_freeze_peer_state():
     future = wire(motion(2, t + 1e6))
     bearings = wire(BearingShare(sender=2, stamp_s=t + 1e6, yaw_rad=0.0, targets=[1],
                                  beta_body=[(1.0, 0.0, 0.0)]))  # fmt: skip
-    table = wire(ExcitationTable(sender=2, stamp_s=t, first=[2], second=[0], excitation=[5.0],
+    table = wire(ExcitationTable(sender=2, stamp_s=t, first=[0], second=[2], excitation=[5.0],
                                  stamps_s=[t + 1e6]))  # fmt: skip
     c.step(t + 0.01, own(t + 0.01), [future, bearings, table])
     for k in range(2, 50):
@@ -89,7 +96,7 @@ def test_one_future_stamped_peer_sample_does_not_freeze_peer_state():
         c.step(t_k, own(t_k), [wire(motion(2, t_k))])
         assert c._motion_hist[2].newest_s == t_k  # real samples keep coming in
     assert c.dropped["future_stamp"] == 3
-    assert 2 not in c._beta_in and (2, 0) not in c._lam_table
+    assert 2 not in c._beta_in and (0, 2) not in c._lam_table
 
 
 def test_one_future_stamped_camera_frame_does_not_blind_the_core():
@@ -157,3 +164,24 @@ def test_a_clock_reset_rebuilds_the_stamped_peer_state():
     assert c.dropped["time_backwards"] == 1
     c.step(0.51, own(0.51), [wire(motion(2, 0.51))])
     assert c._motion_hist[2].newest_s == 0.51 and c._own_hist.newest_s == 0.51
+
+
+# ---------------------------------------------------------------- defect 4: bounded tables
+
+
+def test_consensus_names_and_excitation_edges_are_bounded_by_the_fleet():
+    c = core(1)
+    t = 1.0
+    for k in range(20):
+        t += 0.01
+        names = [f"n{k}_{m}" for m in range(1000)]
+        cons = ConsensusState(sender=2, stamp_s=t, names=["e_index", *names],
+                              x=[[0.0]] * 1001, z=[[0.0]] * 1001)  # fmt: skip
+        first = [m % 50 for m in range(1000)]
+        second = [50 + k + m // 50 for m in range(1000)]
+        table = ExcitationTable(sender=2, stamp_s=t, first=[0, *first], second=[2, *second],
+                                excitation=[1.0] * 1001, stamps_s=[t] * 1001)  # fmt: skip
+        c.step(t, own(t), [wire(cons), wire(table)])
+    assert set(c._cons_in) <= {"e_index", "p_bar", "dlam_dwl", "w_l"} and 2 in c._cons_in["e_index"]
+    assert set(c._lam_table) <= {(0, 1), (0, 2), (1, 2)} and (0, 2) in c._lam_table
+    assert c.dropped["unknown_name"] == 20_000 and c.dropped["unknown_edge"] == 20_000
