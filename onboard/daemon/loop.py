@@ -41,6 +41,7 @@ from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peer_clock import PeerClockCheck
 from onboard.daemon.peers import DropCounter, PeerLink
+from onboard.daemon.replay import SeqWindow
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.bearing import ibr_r3s1
@@ -163,6 +164,7 @@ class AgentDaemon:
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
         self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.peer_timeout_s)
+        self.seq_window = SeqWindow()
         self._skewed: frozenset[int] = frozenset()
         self._status_seq = 0
         self.metrics = DaemonMetrics()
@@ -405,7 +407,7 @@ class AgentDaemon:
         gaps than :data:`MAX_GAP_S` are not integrated: the core jumps (and will re-converge).
         """
         own = self._measurements(now_s, tel)
-        inbox = self.peers.drain(self._neighbours)
+        inbox = [m for m in self.peers.drain(self._neighbours) if self._admit(m, now_s)]
         for msg in inbox:
             self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
         last = self._last_core_t
@@ -421,6 +423,15 @@ class AgentDaemon:
         setpoint, last_out = self.core.step(now_s, own, inbox)
         out.extend(last_out)
         return setpoint, out
+
+    def _admit(self, msg: Payload, now_s: float) -> bool:
+        """The replay check (:mod:`onboard.daemon.replay`): duplicates and out-of-window
+        sequence numbers are counted and dropped before anything looks at them."""
+        reason = self.seq_window.admit(msg.sender, type(msg), msg.seq, msg.stamp_s, now_s)
+        if reason is None:
+            return True
+        self.drops.drop(reason, f"{type(msg).__name__} seq {msg.seq} from {msg.sender}")
+        return reason == "seq_resync"
 
     def _fly(self, now_s: float, tel: Telemetry, setpoint) -> list[str]:
         """Send the setpoint, or zero when unsafe; return the active alarms."""
