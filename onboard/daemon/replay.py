@@ -12,13 +12,17 @@ accepted one by at most ``window``; a duplicate or older number is dropped as ``
 one too far ahead as ``seq_window`` (a forged huge number would otherwise lock the real sender
 out). A sender that restarted (its numbers start again at 0) or was silent for long is
 followed again after ``resync_samples`` consecutive out-of-window samples that are consistent
-with each other and freshly stamped by the receiver's clock (a replay of old captures is not):
-counted as ``seq_resync``. The table holds one entry per (known sender, payload type).
+with each other, freshly stamped by the receiver's clock and newer than the last accepted one
+(a replay of captured samples is neither; after the receiver's own clock went back, a restarted
+simulator, the stamps only need to be fresh): counted as ``seq_resync``. The table holds one entry per (known sender, payload type).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+
+from messages.limits import stamp_ahead
 
 SEQ_WINDOW = 1000
 """Largest accepted step of ``seq`` between two samples of one kind (10 s of a 100 Hz core)."""
@@ -31,6 +35,7 @@ RESYNC_MAX_AGE_S = 0.5
 @dataclass
 class _Track:
     last_seq: int
+    last_stamp_s: float = -math.inf
     candidate_seq: int | None = None
     candidates: int = 0
 
@@ -50,13 +55,15 @@ class SeqWindow:
         key = (sender, kind)
         track = self._tracks.get(key)
         if track is None:
-            self._tracks[key] = _Track(seq)
+            self._tracks[key] = _Track(seq, stamp_s)
             return None
         step = seq - track.last_seq
         if 0 < step <= self.window:
             track.last_seq, track.candidate_seq, track.candidates = seq, None, 0
+            track.last_stamp_s = stamp_s
             return None
-        if now_s - stamp_s <= self.resync_max_age_s:
+        newer = stamp_s > track.last_stamp_s or stamp_ahead(track.last_stamp_s, now_s)
+        if newer and now_s - stamp_s <= self.resync_max_age_s:
             prev = track.candidate_seq
             if prev is not None and 0 < seq - prev <= self.window:
                 track.candidates += 1
@@ -65,6 +72,7 @@ class SeqWindow:
             track.candidate_seq = seq
             if track.candidates >= self.resync_samples:
                 track.last_seq, track.candidate_seq, track.candidates = seq, None, 0
+                track.last_stamp_s = stamp_s
                 return "seq_resync"
         return "seq_replay" if step <= 0 else "seq_window"
 

@@ -94,3 +94,45 @@ def test_one_packet_of_poison_each_leaves_the_team_flying(fleet, wait_for):
         assert dropped[k].get("core_unknown_name", 0) >= 4000, dropped[k]
     assert sum(d.get("core_future_stamp", 0) for d in dropped.values()) >= 1
     ev.command_all("land")
+
+
+def test_a_replay_of_captured_samples_does_not_hold_the_team(fleet, wait_for):
+    """Issue 23, defect 11: 2 s of vehicle 1's peer samples captured, then replayed under its
+    keys at 8x its rate for 10 s. Before, the old stamps made its peers flag its clock
+    (``peer_clock:1``) and hold; now the replayed numbers are dropped (``seq_replay``)."""
+    ev, procs, _ports, _args, name = fleet
+
+    def all_flying() -> bool:
+        st = ev.snapshot()
+        return len(st) == N and all(s.phase == "flying" and s.in_air for s in st.values())
+
+    wait_for(all_flying, 60.0, "every daemon flying", ev)
+    captured: list[tuple[str, bytes]] = []
+    sub = ev.session.declare_subscriber(
+        f"bf/{name}/1/peer/**", lambda s: captured.append((str(s.key_expr), s.payload.to_bytes()))
+    )
+    time.sleep(2.0)
+    sub.undeclare()
+    assert len(captured) > 100
+    ev.alarms_seen.clear()
+    period = 2.0 / len(captured) / 8.0
+    t0 = time.monotonic()
+    sent = 0
+    while time.monotonic() - t0 < 10.0:
+        k, data = captured[sent % len(captured)]
+        ev.session.put(k, data)
+        sent += 1
+        delay = t0 + sent * period - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+    time.sleep(1.0)
+    st = ev.snapshot()
+    dropped = {k: s.dropped for k, s in st.items()}
+    print(f"replayed {sent} samples; alarms seen {dict(ev.alarms_seen)}; phases "
+          f"{[s.phase for s in st.values()]}; dropped {dropped}")  # fmt: skip
+    assert not procs.dead()
+    assert "peer_clock:1" not in ev.alarms_seen
+    assert all(s.phase == "flying" for s in st.values())
+    for k in (0, 2):
+        assert dropped[k].get("seq_replay", 0) >= sent // 2, dropped[k]
+    ev.command_all("land")

@@ -55,3 +55,17 @@ def test_a_replay_at_eight_times_the_rate_no_longer_flags_the_senders_clock():
             unfiltered.observe(1, captured[(8 * tick + m) % len(captured)][1], now)
         unfiltered.observe(1, now - 0.005, now)
     assert 1 in unfiltered.skewed(now)
+
+
+def test_a_replay_of_recent_captures_never_resynchronizes_but_a_clock_reset_does():
+    w = SeqWindow()
+    for k in range(100):
+        assert w.admit(1, MotionShare, 1000 + k, 100.0 + 0.01 * k, 100.0 + 0.01 * k) is None
+    now = 100.99
+    # the last 0.5 s, captured and replayed at once: fresh stamps, but none newer than the
+    # last accepted one
+    replay = {w.admit(1, MotionShare, 1000 + k, 100.0 + 0.01 * k, now) for k in range(50, 100)}
+    assert replay == {"seq_replay"}
+    # the simulator restarted: the receiver's clock and the sender's numbers and stamps restart
+    reasons = [w.admit(1, MotionShare, k, 0.01 * k, 0.01 * k) for k in range(6)]
+    assert reasons == ["seq_replay"] * 4 + ["seq_resync", None]
