@@ -247,6 +247,7 @@ def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
     otherwise the daemon's clock minus the attitude's age. Not the newest autopilot time of any
     message: a LOCAL_POSITION_NED after the ATTITUDE re-stamped the old roll and pitch up to a
     stream period late, and levelling paired them with the wrong frames."""
+    from messages.limits import stamp_ahead
     from onboard.daemon.camera_source import AttitudeSample
     from onboard.daemon.clock import autopilot_stamp
 
@@ -255,7 +256,7 @@ def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
         if not tel.connected or now is None:
             return None
         t = autopilot_stamp(tel.t_boot_attitude_s, tel.attitude_age_s, now, clock_kind == "sim")
-        if t is None:
+        if t is None or stamp_ahead(t, now):  # a forged time_boot_ms would end the history
             return None
         return AttitudeSample(t, tel.roll_rad, tel.pitch_rad)
 

@@ -2,9 +2,10 @@
 three daemons as processes, real Zenoh. Each of these single samples left a vehicle broken for
 good before: a ``MotionShare`` with ``v_body = 1e300`` and a ``LocalizationState`` with
 ``p_hat = 1e300`` (NaN estimates, status never published again), a ``MotionShare`` stamped
-1e6 s ahead (peer motion frozen), a ``SimClock`` 1000 s ahead (every daemon's clock moved) and
-a ``ConsensusState`` with 4,000 made-up names (kept forever). Now they are counted and dropped,
-the clock jump raises ``clock_jump``, and the team keeps flying and reporting."""
+1e6 s ahead (peer motion frozen), a ``SimClock`` 1000 s ahead (every daemon's clock moved),
+a ``ConsensusState`` with 4,000 made-up names (kept forever) and a camera frame stamped 1e6 s
+ahead (every later frame ignored). Now they are counted and dropped, the clock jump raises
+``clock_jump``, and the team keeps flying and reporting."""
 
 from __future__ import annotations
 
@@ -53,6 +54,8 @@ def test_one_packet_of_poison_each_leaves_the_team_flying(fleet, wait_for):
                                           **motion)),
         (f"bf/{name}/sim/clock", _raw("sim_clock", 0, t + 1000.0, t_s=t + 1000.0, step=1,
                                       speedup=1.0, lockstep=False)),
+        (f"bf/{name}/0/camera/bearings", _raw("camera_bearings", 0, t + 1e6, targets=[1],
+                                              beta_body=[[1.0, 0.0, 0.0]])),
         (f"bf/{name}/1/peer/consensus", _raw("peer.consensus", 1, t,
                                              names=[f"n{k}" for k in range(4000)],
                                              x=[[0.0]] * 4000, z=[[]] * 4000)),
@@ -88,6 +91,8 @@ def test_one_packet_of_poison_each_leaves_the_team_flying(fleet, wait_for):
     assert diverging == set()
     assert all(s.phase == "flying" for s in st.values())
     assert "clock_jump" in ev.alarms_seen
+    assert "bearings_stale" not in ev.alarms_seen  # the future frame did not blind vehicle 0
+    assert dropped[0].get("camera_future_stamp", 0) == 1
     assert all(d.get("clock_jump", 0) >= 1 for d in dropped.values())
     for k in (0, 2):  # agent 1's neighbours decoded and dropped its poison
         assert dropped[k].get("out_of_range", 0) >= 2, dropped[k]
