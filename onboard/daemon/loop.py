@@ -31,6 +31,7 @@ import numpy as np
 from messages.agent import OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand
+from messages.limits import STAMP_FUTURE_MAX_S
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
 from onboard.control.envelope import bound_down_velocity, bound_horizontal_velocity
@@ -412,6 +413,8 @@ class AgentDaemon:
             self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
         last = self._last_core_t
         self._last_core_t = now_s
+        if last is not None and now_s < last - STAMP_FUTURE_MAX_S:
+            self._clock_went_back(last, now_s)
         out: list[Payload] = []
         if last is not None and MAX_CORE_DT_S < now_s - last <= MAX_GAP_S:
             n = math.ceil((now_s - last) / MAX_CORE_DT_S)
@@ -423,6 +426,19 @@ class AgentDaemon:
         setpoint, last_out = self.core.step(now_s, own, inbox)
         out.extend(last_out)
         return setpoint, out
+
+    def _clock_went_back(self, last_s: float, now_s: float) -> None:
+        """The daemon's clock went back (a restarted simulator, ``clock_resync``): what the
+        daemon keeps by time (peers' loss times, the clock check's windows, the last failed
+        tick) would lie in the future and never expire; it starts again. The core does the
+        same for its own state (:meth:`onboard.agent.AgentCore.step`)."""
+        log.warning(
+            "clock went back from %.3f to %.3f s: restarting time-keyed state", last_s, now_s
+        )
+        self._lost_since.clear()
+        self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.peer_timeout_s)
+        self._step_error_s = -math.inf
+        self._newest_frame_s = -math.inf
 
     def _admit(self, msg: Payload, now_s: float) -> bool:
         """The replay check (:mod:`onboard.daemon.replay`): duplicates and out-of-window

@@ -103,3 +103,37 @@ def test_an_exception_in_one_tick_is_counted_alarmed_and_the_loop_goes_on(tmp_pa
     assert "step_error" in first.alarms and first.dropped["step_exception"] == 1
     assert ((0.0, 0.0, 0.0), 0.0) in link.setpoints  # held
     assert drops.snapshot()["step_exception"] == 1  # once: the next ticks ran normally
+
+
+class _SettableClock:
+    def __init__(self, t_s: float) -> None:
+        self.t_s, self.t0 = t_s, time.monotonic()
+
+    def now(self) -> float:
+        return self.t_s + (time.monotonic() - self.t0)
+
+    def set(self, t_s: float) -> None:
+        self.t_s, self.t0 = t_s, time.monotonic()
+
+
+def test_after_the_clock_went_back_no_alarm_is_stuck_in_the_future(tmp_path):
+    """A restarted simulator: the step error at t = 500 s must not hold the vehicle until the
+    new clock reaches 500 s again."""
+    path = write_demo_files(tmp_path, plan_formation(3, seed=1), DemoPorts(zenoh=1, mavlink=2,
+                            gcs=3), "t", "formation-active")  # fmt: skip
+    link, peers, drops, clock = _Link(), _Peers(), DropCounter(), _SettableClock(500.0)
+    daemon = AgentDaemon(load_fleet(path), 0, link, peers, _NoCamera(), clock, drops, "x")
+    loop = threading.Thread(target=daemon.run, daemon=True)
+    loop.start()
+    t0 = time.monotonic()
+    while not peers.statuses and time.monotonic() - t0 < 10.0:
+        time.sleep(0.02)
+    clock.set(1.0)  # restarted: time starts again
+    n = len(peers.statuses)
+    while len(peers.statuses) < n + 3 and time.monotonic() - t0 < 20.0:
+        time.sleep(0.02)
+    daemon.stop_event.set()
+    loop.join(5.0)
+    after = [s for s in peers.statuses[n:] if s.stamp_s < 100.0]
+    assert after and all("step_error" not in s.alarms for s in after)
+    assert after[-1].dropped.get("core_time_backwards", 0) >= 1
