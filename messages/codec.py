@@ -147,12 +147,19 @@ def _peek(data: bytes | bytearray | memoryview) -> Any:
 def _check_arrays(msg: msgspec.Struct) -> None:
     """Bound the float64 array fields (msgspec cannot put a ``Meta`` on them): every entry
     within :data:`messages.limits.ARRAY_ABS_MAX`."""
-    for name in msg.__struct_fields__:
+    for name in _array_fields(type(msg)):
         value = getattr(msg, name)
-        if type(value) is np.ndarray and len(value) and float(np.abs(value).max()) > ARRAY_ABS_MAX:
+        if len(value) and float(np.abs(value).max()) > ARRAY_ABS_MAX:
             raise MessageError(
                 "out_of_range", f"{type(msg).__name__}.{name}: |entry| > {ARRAY_ABS_MAX:g}"
             )
+
+
+@lru_cache(maxsize=256)
+def _array_fields(kind: type[msgspec.Struct]) -> tuple[str, ...]:
+    """The :data:`F64Array` fields of a payload type (most have none: no per-message scan)."""
+    hints = msgspec.structs.fields(kind)
+    return tuple(f.name for f in hints if getattr(f.type, "__origin__", f.type) is np.ndarray)
 
 
 def _all_finite(value: Any) -> bool:
