@@ -407,14 +407,14 @@ class AgentDaemon:
         loaded machine, a stalled clock) must not become one long, unstable Euler step. Longer
         gaps than :data:`MAX_GAP_S` are not integrated: the core jumps (and will re-converge).
         """
-        own = self._measurements(now_s, tel)
-        inbox = [m for m in self.peers.drain(self._neighbours) if self._admit(m, now_s)]
-        for msg in inbox:
-            self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
         last = self._last_core_t
         self._last_core_t = now_s
         if last is not None and now_s < last - STAMP_FUTURE_MAX_S:
             self._clock_went_back(last, now_s)
+        own = self._measurements(now_s, tel)
+        inbox = [m for m in self.peers.drain(self._neighbours) if self._admit(m, now_s)]
+        for msg in inbox:
+            self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
         out: list[Payload] = []
         if last is not None and MAX_CORE_DT_S < now_s - last <= MAX_GAP_S:
             n = math.ceil((now_s - last) / MAX_CORE_DT_S)
