@@ -24,8 +24,9 @@ from dataclasses import dataclass, field
 
 from messages.limits import stamp_ahead
 
-SEQ_WINDOW = 1000
-"""Largest accepted step of ``seq`` between two samples of one kind (10 s of a 100 Hz core)."""
+SEQ_WINDOW = 10_000
+"""Largest accepted step of ``seq`` between two samples of one kind: 100 s of a 100 Hz core (a
+kind can pause: ``SfmEstimate`` while the edge's other end is lost)."""
 RESYNC_SAMPLES = 5
 """Consecutive consistent out-of-window samples before the window follows them."""
 RESYNC_MAX_AGE_S = 0.5
