@@ -3,7 +3,8 @@
 Every payload is a :class:`Payload` subclass (a ``msgspec.Struct``) that carries its schema
 version, the sender id, a per-sender sequence number and a timestamp, so receivers can measure
 loss and age. Payloads travel as MessagePack with a ``type`` tag; :func:`decode` validates size,
-type, version, finiteness of every float and (optionally) the sender, and raises one error type,
+type, version, finiteness of every float, its physical range (:mod:`messages.limits`) and
+(optionally) the sender, and raises one error type,
 :class:`MessageError`, with a one-line reason that a daemon counts and logs before dropping.
 
 Long numeric vectors (a consensus state of a hundred floats) are :data:`F64Array` fields: a
@@ -14,6 +15,7 @@ side converts a hundred Python floats one by one.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Collection, Iterable
 from functools import lru_cache
 from typing import Any, TypeVar
@@ -21,6 +23,8 @@ from typing import Any, TypeVar
 import msgspec
 import numpy as np
 import numpy.typing as npt
+
+from messages.limits import ARRAY_ABS_MAX, AgentId, Seq, Stamp
 
 SCHEMA_VERSION = 2
 """2: :class:`messages.rigidity.RigidityEigenShare` carries its vectors as :data:`F64Array`."""
@@ -42,9 +46,9 @@ class Payload(msgspec.Struct, tag_field="type", kw_only=True, forbid_unknown_fie
     """Base of every payload: schema version, sender id, sequence number and timestamp (s)."""
 
     version: int = SCHEMA_VERSION
-    sender: int
-    seq: int = 0
-    stamp_s: float = 0.0
+    sender: AgentId
+    seq: Seq = 0
+    stamp_s: Stamp = 0.0
 
 
 P = TypeVar("P", bound=Payload)
@@ -88,25 +92,32 @@ def decode(
     """Decode and validate ``data`` as ``kind`` (a Payload class or a ``Union`` of them).
 
     Raises :class:`MessageError` with reason ``oversize``, ``malformed``, ``version``,
-    ``nonfinite`` or ``unknown_sender``.
+    ``nonfinite``, ``out_of_range`` (a bound of :mod:`messages.limits`) or ``unknown_sender``.
     """
     if len(data) > MAX_PAYLOAD_BYTES:
         raise MessageError("oversize", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
     try:
         msg = _decoder(kind).decode(data)
     except msgspec.DecodeError as exc:  # (ValidationError is a DecodeError)
-        # a payload of another schema version is reported as such, not as malformed: only on
-        # this slow path is the version read from the raw map
-        version = _peek_version(data)
-        if version is not None and version != SCHEMA_VERSION:
+        # a payload of another schema version is reported as such, not as malformed, and a
+        # NaN that a range bound caught as nonfinite: only on this slow path is the raw map read
+        raw = _peek(data)
+        version = raw.get("version") if isinstance(raw, dict) else None
+        if isinstance(version, int) and version != SCHEMA_VERSION:
             raise MessageError(
                 "version", f"schema version {version}, expected {SCHEMA_VERSION}"
             ) from None
+        if isinstance(exc, msgspec.ValidationError):
+            if raw is not None and not _all_finite(raw):
+                _check_finite(raw, "payload")
+            if _OUT_OF_RANGE.match(str(exc)):
+                raise MessageError("out_of_range", str(exc)) from None
         raise MessageError("malformed", str(exc)) from None
     if msg.version != SCHEMA_VERSION:
         raise MessageError("version", f"schema version {msg.version}, expected {SCHEMA_VERSION}")
     if not _all_finite(msg):  # fast check; the slow one names the field
         _check_finite(msg, type(msg).__name__)
+    _check_arrays(msg)
     if known_senders is not None and msg.sender not in known_senders:
         raise MessageError("unknown_sender", f"sender {msg.sender} is not in the fleet")
     return msg
@@ -119,16 +130,36 @@ def _decoder(kind: Any) -> msgspec.msgpack.Decoder:
     return msgspec.msgpack.Decoder(kind, dec_hook=_dec_hook)
 
 
-def _peek_version(data: bytes | bytearray | memoryview) -> int | None:
-    """Read the ``version`` field of a MessagePack map without validating the rest, so a payload
-    from a newer schema is reported as a version mismatch rather than as malformed."""
+_OUT_OF_RANGE = re.compile(r"Expected `\w+`( of length)? [<>]=? ")
+"""How msgspec words a violated ``Meta`` bound (messages.limits): reason ``out_of_range``."""
+
+
+def _peek(data: bytes | bytearray | memoryview) -> Any:
+    """The payload as plain MessagePack (no schema), or ``None``: read only after a failed
+    decode, so a payload from a newer schema is reported as a version mismatch rather than as
+    malformed, and a NaN as nonfinite rather than as out of range."""
     try:
-        raw = msgspec.msgpack.decode(bytes(data))
+        return msgspec.msgpack.decode(bytes(data))
     except msgspec.DecodeError:
         return None
-    if isinstance(raw, dict) and isinstance(raw.get("version"), int):
-        return int(raw["version"])
-    return None
+
+
+def _check_arrays(msg: msgspec.Struct) -> None:
+    """Bound the float64 array fields (msgspec cannot put a ``Meta`` on them): every entry
+    within :data:`messages.limits.ARRAY_ABS_MAX`."""
+    for name in _array_fields(type(msg)):
+        value = getattr(msg, name)
+        if len(value) and float(np.abs(value).max()) > ARRAY_ABS_MAX:
+            raise MessageError(
+                "out_of_range", f"{type(msg).__name__}.{name}: |entry| > {ARRAY_ABS_MAX:g}"
+            )
+
+
+@lru_cache(maxsize=256)
+def _array_fields(kind: type[msgspec.Struct]) -> tuple[str, ...]:
+    """The :data:`F64Array` fields of a payload type (most have none: no per-message scan)."""
+    hints = msgspec.structs.fields(kind)
+    return tuple(f.name for f in hints if getattr(f.type, "__origin__", f.type) is np.ndarray)
 
 
 def _all_finite(value: Any) -> bool:

@@ -12,12 +12,34 @@ Per 2 ms step an agent publishes :class:`MotionShare`, :class:`LocalizationState
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import msgspec
 
 from messages.codec import Payload
+from messages.limits import (
+    LIST_MAX,
+    Angle,
+    Bearing3,
+    Dimensionless,
+    IdList,
+    InvDistance,
+    Name,
+    PositionVec3,
+    Rate,
+    SpeedVec3,
+    Stamp,
+)
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 
 Vec3 = tuple[float, float, float]
+# bounded lists of bounded values (messages.limits): a huge finite number is out_of_range
+_Bearings = Annotated[list[Bearing3], msgspec.Meta(max_length=LIST_MAX)]
+_InvDistances = Annotated[list[InvDistance], msgspec.Meta(max_length=LIST_MAX)]
+_Values = Annotated[list[Dimensionless], msgspec.Meta(max_length=LIST_MAX)]
+_Stamps = Annotated[list[Stamp], msgspec.Meta(max_length=LIST_MAX)]
+_Names = Annotated[list[Name], msgspec.Meta(max_length=LIST_MAX)]
+_Rows = Annotated[list[_Values], msgspec.Meta(max_length=LIST_MAX)]
 
 
 class MotionShare(Payload, tag="peer.motion"):
@@ -25,9 +47,9 @@ class MotionShare(Payload, tag="peer.motion"):
     (eq. 7). ``yaw_rad`` is the sender's yaw in its *own* arbitrary reference (an odometry
     angle; agents share no common frame): receivers only use its changes over time."""
 
-    v_body: Vec3
-    yaw_rate_rad_s: float
-    yaw_rad: float
+    v_body: SpeedVec3
+    yaw_rate_rad_s: Rate
+    yaw_rad: Angle
 
 
 class BearingShare(Payload, tag="peer.bearings"):
@@ -35,9 +57,9 @@ class BearingShare(Payload, tag="peer.bearings"):
     odometry yaw at that instant. Used for relative yaw on reciprocal edges (paper 002 fig. 6)
     and for the in-edge terms of the localization filter (eq. 6) and of the formation law."""
 
-    yaw_rad: float
-    targets: list[int]
-    beta_body: list[Vec3]
+    yaw_rad: Angle
+    targets: IdList
+    beta_body: _Bearings
 
 
 class SfmEstimate(Payload, tag="peer.sfm"):
@@ -47,11 +69,11 @@ class SfmEstimate(Payload, tag="peer.sfm"):
     ``lambda_ij = u_ij^T P_ij u_ij``; ``e_folds`` is ``int sqrt(alpha lambda_ij) dt`` (how far the
     observer has converged, empty from senders that predate it)."""
 
-    peers: list[int]
-    chi_hat_inv_m: list[float]
-    excitation: list[float]
-    e_index: list[float]
-    e_folds: list[float] = msgspec.field(default_factory=list)
+    peers: IdList
+    chi_hat_inv_m: _InvDistances
+    excitation: _Values
+    e_index: _Values
+    e_folds: _Values = msgspec.field(default_factory=list)
 
 
 class ExcitationTable(Payload, tag="peer.excitation"):
@@ -60,17 +82,17 @@ class ExcitationTable(Payload, tag="peer.excitation"):
     value per edge and relay it, so every agent knows every ``lambda_k`` within a few hops
     and computes ``lambdabar`` (eq. 11) exactly."""
 
-    first: list[int]
-    second: list[int]
-    excitation: list[float]
-    stamps_s: list[float]
+    first: IdList
+    second: IdList
+    excitation: _Values
+    stamps_s: _Stamps
 
 
 class LocalizationState(Payload, tag="peer.localization"):
     """The sender's estimate ``(phat_i, psihat_i)`` in the team's shared estimated frame (eq. 6)."""
 
-    p_hat_ned: Vec3
-    yaw_hat_rad: float
+    p_hat_ned: PositionVec3
+    yaw_hat_rad: Angle
 
 
 class ConsensusState(Payload, tag="peer.consensus"):
@@ -79,9 +101,9 @@ class ConsensusState(Payload, tag="peer.consensus"):
     network average of the local inputs of quantity ``names[m]`` and ``z[m]`` is its integral
     state (empty for plain neighbour averaging, e.g. of ``w_l``)."""
 
-    names: list[str]
-    x: list[list[float]]
-    z: list[list[float]]
+    names: _Names
+    x: _Rows
+    z: _Rows
 
 
 PeerPayload = (

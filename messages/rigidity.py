@@ -10,9 +10,15 @@ agent ``i`` that measures it, which sends the blocks of ``j`` and ``k`` to them)
 
 from __future__ import annotations
 
+from typing import Annotated
+
+import msgspec
+
 from messages.codec import F64Array, Payload
+from messages.limits import LIST_MAX, Angle, Dimensionless, IdList, Position, PositionVec3
 
 Vec3 = tuple[float, float, float]
+_Gradients = Annotated[list[tuple[Position, Position, Position]], msgspec.Meta(max_length=LIST_MAX)]
 
 
 class AngleLocalizationShare(Payload, tag="peer.angle_localization"):
@@ -20,11 +26,11 @@ class AngleLocalizationShare(Payload, tag="peer.angle_localization"):
     of its body frame in the estimated frame (``yaw_known`` false until it has seen someone),
     and ``grad_ned[m]``, its angles' part of ``dJ/dphat`` for agent ``targets[m]``."""
 
-    p_hat_ned: Vec3
-    yaw_hat_rad: float
+    p_hat_ned: PositionVec3
+    yaw_hat_rad: Angle
     yaw_known: bool
-    targets: list[int]
-    grad_ned: list[Vec3]
+    targets: IdList
+    grad_ned: _Gradients
 
 
 class RigidityEigenShare(Payload, tag="peer.rigidity_eigen"):
@@ -42,8 +48,8 @@ class RigidityEigenShare(Payload, tag="peer.rigidity_eigen"):
 
     A share whose lengths do not match the receiver's ``k`` is malformed."""
 
-    lambda_hat: float
-    targets: list[int]
+    lambda_hat: Dimensionless
+    targets: IdList
     state: F64Array
     per_target: F64Array
     round: int = 0

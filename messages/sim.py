@@ -14,42 +14,60 @@ Keys: ``bf/<fleet>/<id>/camera/bearings``, ``bf/<fleet>/<id>/truth`` (messages.k
 
 from __future__ import annotations
 
+from typing import Annotated
+
+import msgspec
+
 from messages.codec import Payload
 from messages.keys import PREFIX, key
+from messages.limits import (
+    LIST_MAX,
+    Angle,
+    Bearing3,
+    IdList,
+    PositionVec3,
+    Rate,
+    Seq,
+    Speedup,
+    SpeedVec3,
+    Stamp,
+)
 
 CAMERA_TOPIC = "camera/bearings"
 TRUTH_TOPIC = "truth"
+SIM_SENDER = 0
+"""The ``sender`` of the simulator's fleet-wide payloads (:class:`SimClock`)."""
 
 
 class CameraBearings(Payload, tag="camera_bearings"):
     """Body-frame unit bearings from ``sender`` to each vehicle in ``targets`` (same order)."""
 
-    targets: list[int]
-    beta_body: list[tuple[float, float, float]]
+    targets: IdList
+    beta_body: Annotated[list[Bearing3], msgspec.Meta(max_length=LIST_MAX)]
 
 
 class Truth(Payload, tag="truth"):
     """Ground truth of vehicle ``sender``: NED position (m), velocity (m/s), yaw (rad), yaw rate."""
 
-    p_ned: tuple[float, float, float]
-    v_ned: tuple[float, float, float]
-    yaw_rad: float
-    yaw_rate_radps: float
+    p_ned: PositionVec3
+    v_ned: SpeedVec3
+    yaw_rad: Angle
+    yaw_rate_radps: Rate
 
 
 class SimClock(Payload, tag="sim_clock"):
     """Simulation time ``t_s`` after ``step`` world steps; ``lockstep`` says who drives it."""
 
-    t_s: float
-    step: int
-    speedup: float
+    t_s: Stamp
+    step: Seq
+    speedup: Speedup
     lockstep: bool
 
 
 class SimStep(Payload, tag="sim_step"):
     """Lockstep driver to simulator: run until simulation time ``until_s``."""
 
-    until_s: float
+    until_s: Stamp
 
 
 def camera_key(fleet: str, agent_id: int) -> str:

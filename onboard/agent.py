@@ -40,6 +40,7 @@ import numpy as np
 
 from messages.agent import AgentStatus, OwnMeasurements, Setpoint
 from messages.codec import Payload
+from messages.limits import STAMP_FUTURE_MAX_S, stamp_ahead
 from messages.peer import (
     BearingShare,
     ConsensusState,
@@ -66,6 +67,10 @@ intervals between samples are integrated in equal sub-steps."""
 MAX_ODOMETRY_GAP_S = 0.25
 """Longest gap between two own (or a peer's) odometry samples the SfM observers integrate across
 (an autopilot streams 20-50 Hz); across a longer one they resynchronize after it."""
+CONSENSUS_NAMES = frozenset({"e_index", "p_bar", "dlam_dwl", "w_l"})
+"""The quantities agents run consensus on (:class:`messages.peer.ConsensusState` names): any
+other name from a neighbour is counted (``unknown_name``) and dropped, so a neighbour cannot
+grow a receiver's tables (issue 23: 45,000 names per payload took a daemon to 650 MB)."""
 
 
 def _rotz(psi: float, v: Vec3) -> Vec3:
@@ -170,6 +175,9 @@ class AgentCore:
         self._seq = 0
         self.dropped: dict[str, int] = {}
         self._neighbour_set = frozenset(self.neighbours)
+        # the excitation table's keys: the fleet's reciprocal edges, run by their lower id
+        edges = set(cfg.edges)
+        self._known_edges = frozenset((i, j) for i, j in edges if i < j and (j, i) in edges)
         rigidity_senders = (
             self._neighbour_set if self.rigidity is None else self.rigidity_neighbours
         )
@@ -198,6 +206,9 @@ class AgentCore:
             return
         if route is None:
             self._drop("unknown_type")
+            return
+        if stamp_ahead(msg.stamp_s, t_s):  # "the newest by stamp" would keep it for good
+            self._drop("future_stamp")
             return
         self._heard[j] = t_s
         route[0](j, msg)
@@ -239,19 +250,31 @@ class AgentCore:
         if not (len(msg.second) == len(msg.excitation) == len(msg.stamps_s) == n):
             self._drop("malformed")
             return
-        table = self._lam_table
+        table, known = self._lam_table, self._known_edges
+        ahead = False
         for a, b, lam, stamp in zip(
             msg.first, msg.second, msg.excitation, msg.stamps_s, strict=True
         ):
+            if (a, b) not in known:  # only the fleet's edges: the table stays bounded
+                self._drop("unknown_edge")
+                continue
+            if stamp > msg.stamp_s + STAMP_FUTURE_MAX_S:  # measured after it was sent
+                ahead = True
+                continue
             prev = table.get((a, b))
             if prev is None or stamp > prev[0]:
                 table[(a, b)] = (stamp, lam)
+        if ahead:
+            self._drop("future_stamp")
 
     def _on_consensus(self, j: int, msg: ConsensusState) -> None:
         if not len(msg.names) == len(msg.x) == len(msg.z):
             self._drop("malformed")
             return
         for name, x, z in zip(msg.names, msg.x, msg.z, strict=True):
+            if name not in CONSENSUS_NAMES:
+                self._drop("unknown_name")
+                continue
             self._cons_in.setdefault(name, {})[j] = (msg.stamp_s, x, z)
 
     def _on_rigidity(self, j: int, msg: Payload) -> None:
@@ -263,6 +286,29 @@ class AgentCore:
     def _fresh(self, stamp_s: float, t_s: float) -> bool:
         return t_s - stamp_s <= self.config.peer_timeout_s
 
+    def _forget_time(self) -> None:
+        """Resynchronize after the clock went back by more than
+        :data:`messages.limits.STAMP_FUTURE_MAX_S` (a restarted simulator, a stepped wall
+        clock): everything kept "newest by stamp" now lies in the future and would never be
+        replaced, so the stamped peer data, histories, frames and relative yaws are dropped and
+        rebuilt from the next samples. Estimates (``phat``, ``chihat``, consensus) are kept."""
+        cfg = self.config
+        self._own_hist = SignalHistory(angle_index=4)
+        self._motion_hist = {j: SignalHistory(angle_index=4) for j in self.running}
+        self._sfm_t.clear()
+        for frames in self._sfm_frames.values():
+            frames.clear()
+        for edge in self.sfm.values():
+            edge.resync()
+            edge.last_frame_s = edge.t_s = -math.inf
+            edge.window = WindowAverage(cfg.e_window_s)
+        self.yaw_edges = {j: RelativeYawEdge() for j in self.reciprocal}
+        for table in (self._motion, self._loc, self._beta_in, self._sfm_in, self._e_folds_in,
+                      self._cons_in, self._heard, self._lam_table, self._beta_out):  # fmt: skip
+            table.clear()
+        self._last_frame_s = -math.inf
+        self._rigidity_t = None
+
     # ----------------------------------------------------------------- step
     def step(
         self, t_s: float, own: OwnMeasurements, inbox: Iterable[Payload] = ()
@@ -272,6 +318,8 @@ class AgentCore:
         dt = 0.0 if self._t is None else t_s - self._t
         if dt < 0.0:
             self._drop("time_backwards")
+            if dt < -STAMP_FUTURE_MAX_S:  # the clock was reset (a restarted simulator)
+                self._forget_time()
             dt = 0.0
         self._t = t_s
         for msg in inbox:
@@ -387,6 +435,9 @@ class AgentCore:
         for b in own.bearings:
             if b.stamp_s <= self._last_frame_s or b.target not in self.out_targets:
                 continue
+            if stamp_ahead(b.stamp_s, own.t_s):  # would blind the camera for good
+                self._drop("future_stamp")
+                continue
             newest = max(newest, b.stamp_s)  # a bad detection is counted once, not every step
             try:
                 beta = (float(b.beta_body[0]), float(b.beta_body[1]), float(b.beta_body[2]))
@@ -479,11 +530,13 @@ class AgentCore:
 
     def chi_hat(self, j: int) -> float | None:
         """Inverse-distance estimate on reciprocal edge ``(self, j)`` now: an own observer's carried
-        to the core's time (:meth:`SfmEdge.chi_at`), a received one as its sender carried it."""
+        to the core's time (:meth:`SfmEdge.chi_at`), a received one as its sender carried it,
+        while it is fresh (``peer_timeout_s``: a silent neighbour's last estimate is not kept)."""
+        t = self._t or 0.0
         if j in self.sfm:
-            return self.sfm[j].chi_at(self._t or 0.0, self.config.peer_timeout_s)
+            return self.sfm[j].chi_at(t, self.config.peer_timeout_s)
         m = self._sfm_in.get(j)
-        return None if m is None else m[1]
+        return None if m is None or not self._fresh(m[0], t) else m[1]
 
     def _localize(self, dt: float, t_s: float, u_i: Vec3, w_i: float) -> None:
         out_edges = []
@@ -684,7 +737,15 @@ class AgentCore:
         if not self.paper000 or not self.reciprocal or self.e_index >= cfg.e_low:
             return False
         folds = [
-            self.sfm[j].e_folds if j in self.sfm else self._e_folds_in.get(j, 0.0)
+            self.sfm[j].e_folds if j in self.sfm else self._received_e_folds(j)
             for j in self.reciprocal
         ]
         return min(folds) >= cfg.converged_e_folds
+
+    def _received_e_folds(self, j: int) -> float:
+        """E-foldings of edge ``(j, self)`` as ``j`` last shared them; 0 once its SfM estimate
+        is stale (a neighbour that went silent no longer vouches for the scale)."""
+        m = self._sfm_in.get(j)
+        if m is None or not self._fresh(m[0], self._t or 0.0):
+            return 0.0
+        return self._e_folds_in.get(j, 0.0)

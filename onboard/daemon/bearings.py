@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from typing import Any, Protocol
 
 from messages.agent import BearingMeasurement
 from messages.codec import MessageError, decode
+from messages.limits import stamp_ahead
 from messages.sim import CameraBearings, camera_key
 from onboard.daemon.peers import DropCounter, PeerLink
 
@@ -30,12 +32,18 @@ class BearingSource(Protocol):
 
 class SimCameraSource:
     """The simulator's virtual camera over Zenoh; stamps are simulation time, so use it with the
-    daemon's ``clock = "sim"``. Targets outside the fleet are counted and dropped."""
+    daemon's ``clock = "sim"``. Targets outside the fleet are counted and dropped, and so is a
+    frame stamped further ahead of ``clock`` (the daemon's) than
+    :data:`messages.limits.STAMP_FUTURE_MAX_S` (``camera_future_stamp``): kept as the newest,
+    it would hide every real frame after it."""
 
-    def __init__(self, link: PeerLink, drops: DropCounter) -> None:
+    def __init__(
+        self, link: PeerLink, drops: DropCounter, clock: Callable[[], float | None] | None = None
+    ) -> None:
         self.id = link.id
         self.known = link.known
         self.drops = drops
+        self.clock = clock
         self._lock = threading.Lock()
         self._frame: tuple[BearingMeasurement, ...] | None = None
         self._new = False
@@ -51,6 +59,10 @@ class SimCameraSource:
         if msg.sender != self.id or len(msg.targets) != len(msg.beta_body):
             self.drops.drop("camera_malformed", f"frame from {msg.sender}")
             return
+        now_s = self.clock() if self.clock is not None else None
+        if stamp_ahead(msg.stamp_s, now_s):
+            self.drops.drop("camera_future_stamp", f"frame stamped {msg.stamp_s} at {now_s}")
+            return
         frame = []
         for target, beta in zip(msg.targets, msg.beta_body, strict=True):
             norm = math.sqrt(sum(b * b for b in beta))
@@ -61,7 +73,9 @@ class SimCameraSource:
             else:
                 frame.append(BearingMeasurement(target=target, beta_body=beta, stamp_s=msg.stamp_s))
         with self._lock:
-            if msg.stamp_s <= self._stamp:
+            # an older frame is a late duplicate, unless the newest is itself in the future
+            # (our clock was reset: a restarted simulator)
+            if msg.stamp_s <= self._stamp and not stamp_ahead(self._stamp, now_s):
                 return
             self._frame, self._new, self._stamp = tuple(frame), True, msg.stamp_s
 
@@ -73,5 +87,6 @@ class SimCameraSource:
             return self._frame
 
     def age_s(self, now_s: float) -> float:
+        """Never negative: a frame up to :data:`messages.limits.STAMP_FUTURE_MAX_S` ahead is fresh (age 0)."""
         with self._lock:
-            return now_s - self._stamp
+            return max(now_s - self._stamp, 0.0)

@@ -48,6 +48,7 @@ import numpy as np
 from messages.agent import BearingMeasurement
 from messages.codec import MessageError, decode
 from messages.image import Image, image_from_payload, image_key
+from messages.limits import stamp_ahead
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.vision.markers import Detection
 from onboard.vision.pipeline import VisionPipeline
@@ -164,6 +165,7 @@ class CameraImageSource:
         attitude_period_s: float = 0.005,
         max_attitude_gap_s: float = 0.25,
         start: bool = True,
+        clock: Callable[[], float | None] | None = None,
     ) -> None:
         if not pipelines:
             raise ValueError("a camera source needs at least one camera pipeline")
@@ -173,6 +175,9 @@ class CameraImageSource:
         self.drops = drops
         self.attitude = attitude
         self.attitude_period_s = attitude_period_s
+        self.clock = clock
+        """The daemon's clock: an image stamped further ahead of it than
+        :data:`messages.limits.STAMP_FUTURE_MAX_S` is dropped (``camera_future_stamp``)."""
         self.history = AttitudeHistory(max_gap_s=max_attitude_gap_s)
         self.stats = SourceStats()
         self._cond = threading.Condition()
@@ -214,6 +219,9 @@ class CameraImageSource:
             self.drops.drop(
                 "camera_id", f"camera {msg.camera_id}: the rig has {len(self.pipelines)}"
             )
+            return
+        if self.clock is not None and stamp_ahead(msg.stamp_s, self.clock()):
+            self.drops.drop("camera_future_stamp", f"image stamped {msg.stamp_s}")
             return
         self._queue(_Frame(msg.camera_id, msg.stamp_s, payload=msg))
 
@@ -344,7 +352,7 @@ class CameraImageSource:
 
     def age_s(self, now_s: float) -> float:
         with self._cond:
-            return now_s - self._out_stamp
+            return max(now_s - self._out_stamp, 0.0)
 
     def close(self) -> None:
         with self._cond:

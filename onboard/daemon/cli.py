@@ -67,12 +67,12 @@ def agent(
     import msgspec
 
     from messages.rigidity import RIGIDITY_KINDS
-    from messages.sim import SimClock, clock_key
+    from messages.sim import clock_key
     from onboard.autopilot import open_link
     from onboard.autopilot.base import LinkConfig
     from onboard.daemon.bearings import SimCameraSource
     from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
-    from onboard.daemon.clock import OffsetClock, SimClockFollower, WallClock
+    from onboard.daemon.clock import OffsetClock, SimClockFollower, WallClock, sim_clock_handler
     from onboard.daemon.config import ConfigError, load_fleet
     from onboard.daemon.loop import AgentDaemon, agent_config
     from onboard.daemon.peers import DropCounter, PeerLink
@@ -113,17 +113,8 @@ def agent(
         listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
     )  # fmt: skip
     if c.clock == "sim":
-        follower = SimClockFollower()
-
-        def on_clock(sample: object) -> None:
-            try:
-                msg = msgspec.msgpack.decode(sample.payload.to_bytes(), type=SimClock)  # type: ignore[attr-defined]
-            except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-                drops.drop("clock_malformed", str(exc))
-                return
-            follower.update(msg.t_s, msg.speedup, msg.lockstep)
-
-        peers.subscribe(clock_key(c.fleet), on_clock)
+        follower = SimClockFollower(drop=drops.drop)
+        peers.subscribe(clock_key(c.fleet), sim_clock_handler(follower, drops.drop))
         clock = follower
         # The simulator's autopilots send a heartbeat per *simulated* second: slower than real
         # time they arrive 1/speedup wall seconds apart, and a wall-clock heartbeat timeout would
@@ -164,7 +155,12 @@ def agent(
     capture: DeviceCapture | None = None
     if bearings == "camera":
         source = CameraImageSource(
-            agent_id, pipelines, range(fleet.n), drops, _attitude(link, clock, c.clock)
+            agent_id,
+            pipelines,
+            range(fleet.n),
+            drops,
+            _attitude(link, clock, c.clock),
+            clock=clock.now,
         )
         device = camera_device if camera_device is not None else c.camera.device
         if device:
@@ -176,7 +172,7 @@ def agent(
         else:
             source.subscribe(peers)
     else:
-        source = SimCameraSource(peers, drops)
+        source = SimCameraSource(peers, drops, clock.now)
     daemon = AgentDaemon(fleet, agent_id, link, peers, source, clock, drops, url, on_status)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: daemon.stop_event.set())
@@ -251,6 +247,7 @@ def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
     otherwise the daemon's clock minus the attitude's age. Not the newest autopilot time of any
     message: a LOCAL_POSITION_NED after the ATTITUDE re-stamped the old roll and pitch up to a
     stream period late, and levelling paired them with the wrong frames."""
+    from messages.limits import stamp_ahead
     from onboard.daemon.camera_source import AttitudeSample
     from onboard.daemon.clock import autopilot_stamp
 
@@ -259,7 +256,7 @@ def _attitude(link: Any, clock: Any, clock_kind: str) -> Any:
         if not tel.connected or now is None:
             return None
         t = autopilot_stamp(tel.t_boot_attitude_s, tel.attitude_age_s, now, clock_kind == "sim")
-        if t is None:
+        if t is None or stamp_ahead(t, now):  # a forged time_boot_ms would end the history
             return None
         return AttitudeSample(t, tel.roll_rad, tel.pitch_rad)
 

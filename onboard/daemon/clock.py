@@ -10,7 +10,12 @@ from __future__ import annotations
 import math
 import threading
 import time
-from typing import Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from messages.codec import MessageError, decode
+from messages.sim import SIM_SENDER, SimClock
+from messages.vocabulary import Alarm
 
 
 class Clock(Protocol):
@@ -49,9 +54,24 @@ class OffsetClock:
         if observe is not None:
             observe(t_sim_s)
 
+    def fault(self) -> str | None:
+        fault = getattr(self.inner, "fault", None)
+        return None if fault is None else fault()
+
 
 MAX_EXTRAPOLATION_S = 0.1
 """Simulation seconds the follower runs ahead of the newest simulation time it has seen."""
+MAX_CLOCK_JUMP_S = 2.0
+"""A simulation time further than this from what the follower expects (its time plus the
+elapsed wall time at the announced speed-up, at least real time) is implausible: rejected and
+counted (``clock_jump``), unless :data:`RESYNC_SAMPLES` consistent ``SimClock`` samples in a row
+confirm the new timeline (a restarted simulator: ``clock_resync``)."""
+RESYNC_SAMPLES = 5
+"""Consecutive ``SimClock`` samples on one new timeline before the follower adopts it (0.5 s of
+simulation at the simulator's 10 Hz; a single forged sample never moves the clock)."""
+CLOCK_ALARM_S = 5.0
+"""Wall seconds a rejected jump or a resynchronization stays an alarm (``clock_jump``,
+``clock_resync`` in the daemon's status)."""
 
 
 class SimClockFollower:
@@ -64,28 +84,82 @@ class SimClockFollower:
     also stops its world, and a follower that kept extrapolating would run the agents' estimators
     (and stamp their data) ahead of a world that did not move."""
 
-    def __init__(self, max_extrapolation_s: float = MAX_EXTRAPOLATION_S) -> None:
+    def __init__(
+        self,
+        max_extrapolation_s: float = MAX_EXTRAPOLATION_S,
+        drop: Callable[[str, str], None] | None = None,
+        max_jump_s: float = MAX_CLOCK_JUMP_S,
+    ) -> None:
         self.max_extrapolation_s = max_extrapolation_s
+        self.max_jump_s = max_jump_s
+        self._drop = drop
         self._lock = threading.Lock()
         self._t_sim: float | None = None
         self._t_mono = 0.0
         self._speedup = 1.0
         self._lockstep = False
         self._last = -float("inf")
+        self._candidate: tuple[float, float, int] | None = None  # (t_sim, t_mono, count)
+        self._fault: tuple[str, float] | None = None  # (alarm, wall time)
+
+    def _plausible_from(self, t_from: float, mono_from: float, t_sim_s: float, now: float) -> bool:
+        """Whether ``t_sim_s`` can follow ``t_from`` (seen at ``mono_from``) by ``now``."""
+        ahead = max(self._speedup, 1.0) * (now - mono_from) + self.max_jump_s
+        return t_from - self.max_jump_s <= t_sim_s <= t_from + ahead
+
+    def _reject(self, reason: str, detail: str, now: float) -> None:
+        self._fault = (reason, now)
+        if self._drop is not None:
+            self._drop(reason, detail)
 
     def update(self, t_sim_s: float, speedup: float, lockstep: bool) -> None:
+        """A ``SimClock`` sample (already decoded and checked, :func:`sim_clock_handler`)."""
         with self._lock:
-            if self._t_sim is not None and t_sim_s < self._t_sim - 1e-9:
+            now = time.monotonic()
+            if self._t_sim is not None and not self._plausible_from(
+                self._t_sim, self._t_mono, t_sim_s, now
+            ):
+                c = self._candidate
+                if (
+                    c is not None
+                    and c[0] < t_sim_s
+                    and self._plausible_from(c[0], c[1], t_sim_s, now)
+                ):
+                    self._candidate = c = (t_sim_s, now, c[2] + 1)
+                else:
+                    self._candidate = c = (t_sim_s, now, 1)
+                if c[2] < RESYNC_SAMPLES:
+                    self._reject(
+                        "clock_jump", f"simulation time {t_sim_s} after {self._t_sim}", now
+                    )
+                    return
+                self._reject("clock_resync", f"simulation time {self._t_sim} -> {t_sim_s}", now)
+                self._last = -math.inf  # the new timeline may lie behind: follow it
+            elif self._t_sim is not None and t_sim_s < self._t_sim - 1e-9:
                 return  # a late duplicate: never run backwards
-            self._t_sim, self._t_mono = t_sim_s, time.monotonic()
+            self._candidate = None
+            self._t_sim, self._t_mono = t_sim_s, now
             self._speedup, self._lockstep = speedup, lockstep
 
     def observe(self, t_sim_s: float) -> None:
-        """The simulation has reached at least ``t_sim_s`` (a stamp just received)."""
+        """The simulation has reached at least ``t_sim_s`` (a stamp just received); a stamp
+        more than :attr:`max_jump_s` ahead is implausible (``clock_jump``: one forged ATTITUDE
+        with ``time_boot_ms = 4e9`` moved a daemon 46 days ahead)."""
         with self._lock:
             if self._t_sim is None or t_sim_s <= self._extrapolated():
                 return
-            self._t_sim, self._t_mono = t_sim_s, time.monotonic()
+            now = time.monotonic()
+            if t_sim_s > self._extrapolated() + self.max_jump_s:
+                self._reject("clock_jump", f"autopilot time {t_sim_s} at {self._t_sim}", now)
+                return
+            self._t_sim, self._t_mono = t_sim_s, now
+
+    def fault(self) -> Alarm | None:
+        """``clock_jump`` or ``clock_resync`` for :data:`CLOCK_ALARM_S` after one, else ``None``."""
+        with self._lock:
+            f = self._fault
+            recent = f is not None and time.monotonic() - f[1] <= CLOCK_ALARM_S
+            return Alarm(f[0]) if f is not None and recent else None
 
     def _extrapolated(self) -> float:
         assert self._t_sim is not None
@@ -117,3 +191,21 @@ def autopilot_stamp(t_boot_s: float | None, age_s: float, now_s: float, sim: boo
     if sim:
         return t_boot_s
     return now_s - age_s if math.isfinite(age_s) else None
+
+
+def sim_clock_handler(
+    follower: SimClockFollower, drop: Callable[[str, str], None]
+) -> Callable[[Any], None]:
+    """The Zenoh handler of the simulation-clock key: every sample through the checked codec
+    (size, schema version, finiteness and ranges, :mod:`messages.limits`) and from the
+    simulator's sender id only, else counted as ``clock_<reason>`` and dropped."""
+
+    def on_clock(sample: Any) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), SimClock, known_senders=(SIM_SENDER,))
+        except MessageError as exc:
+            drop(f"clock_{exc.reason}", exc.detail)
+            return
+        follower.update(msg.t_s, msg.speedup, msg.lockstep)
+
+    return on_clock

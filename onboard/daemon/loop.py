@@ -31,6 +31,7 @@ import numpy as np
 from messages.agent import OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand
+from messages.limits import STAMP_FUTURE_MAX_S
 from messages.vocabulary import Alarm, alarm_text
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
@@ -42,6 +43,7 @@ from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peer_clock import PeerClockCheck
 from onboard.daemon.peers import DropCounter, PeerLink
+from onboard.daemon.replay import SeqWindow
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.bearing import ibr_r3s1
@@ -57,6 +59,8 @@ MAX_GAP_S = 0.5
 """A longer gap between two ticks is skipped rather than integrated."""
 PEER_LOST_HOLD_S = 2.0
 """A peer without a liveliness token for this long is out of the graph."""
+STEP_ERROR_ALARM_S = 1.0
+"""After an exception escaped a core tick the vehicle holds with alarm ``step_error`` this long."""
 
 
 def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
@@ -162,10 +166,12 @@ class AgentDaemon:
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
         self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.peer_timeout_s)
+        self.seq_window = SeqWindow()
         self._skewed: frozenset[int] = frozenset()
         self._status_seq = 0
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
+        self._step_error_s = -math.inf
 
     # ------------------------------------------------------------------ flight thread
     def _flight(self) -> None:
@@ -347,23 +353,44 @@ class AgentDaemon:
             now_s = self._now()
             if now_s is None or not tel.connected:
                 continue
-            self._handle_commands()
-            self._update_peers(now_s)
-            t_step = time.perf_counter()
-            setpoint, out = self._step_core(now_s, tel)
-            self.metrics.core_step_s.append(time.perf_counter() - t_step)
-            outbox.extend(out)
             step += 1
-            if step % publish_every == 0:
-                self.peers.publish(outbox)
+            try:
+                self._handle_commands()
+                self._update_peers(now_s)
+                t_step = time.perf_counter()
+                setpoint, out = self._step_core(now_s, tel)
+                self.metrics.core_step_s.append(time.perf_counter() - t_step)
+                outbox.extend(out)
+                if step % publish_every == 0:
+                    self.peers.publish(outbox)
+                    outbox = []
+                self._alarms = self._fly(now_s, tel, setpoint)
+            except Exception as exc:  # one bad step must never end the daemon (issue 23)
                 outbox = []
-            self._alarms = self._fly(now_s, tel, setpoint)
+                self._step_failed("step_exception", now_s, exc)
             if step % status_every == 0:
-                status = self._status(now_s, tel)
-                self.peers.publish_status(status)
-                if self.on_status is not None:
-                    self.on_status(status)
+                try:
+                    status = self._status(now_s, tel)
+                    self.peers.publish_status(status)
+                    if self.on_status is not None:
+                        self.on_status(status)
+                except Exception as exc:
+                    self._step_failed("status_exception", now_s, exc)
         self._shutdown()
+
+    def _step_failed(self, reason: str, now_s: float, exc: Exception) -> None:
+        """An exception escaped one tick: count it (``dropped``), log the first traceback, hold
+        (zero setpoint) and raise the ``step_error`` alarm for :data:`STEP_ERROR_ALARM_S`."""
+        if reason not in self.drops.snapshot():
+            log.error("%s in the core loop (holding; logged once)", reason, exc_info=exc)
+        self.drops.drop(reason, f"{type(exc).__name__}: {exc}")
+        self._step_error_s = now_s
+        try:
+            self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+        except Exception:  # the link itself failed: nothing more to do this tick
+            log.debug("zero setpoint after a failed step failed too", exc_info=True)
+        if Alarm.STEP_ERROR not in self._alarms:
+            self._alarms = [*self._alarms, Alarm.STEP_ERROR]
 
     def _tick_period_s(self) -> float:
         """Wall seconds between core ticks: the configured rates are per second of the daemon's
@@ -381,12 +408,14 @@ class AgentDaemon:
         loaded machine, a stalled clock) must not become one long, unstable Euler step. Longer
         gaps than :data:`MAX_GAP_S` are not integrated: the core jumps (and will re-converge).
         """
-        own = self._measurements(now_s, tel)
-        inbox = self.peers.drain(self._neighbours)
-        for msg in inbox:
-            self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
         last = self._last_core_t
         self._last_core_t = now_s
+        if last is not None and now_s < last - STAMP_FUTURE_MAX_S:
+            self._clock_went_back(last, now_s)
+        own = self._measurements(now_s, tel)
+        inbox = [m for m in self.peers.drain(self._neighbours) if self._admit(m, now_s)]
+        for msg in inbox:
+            self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
         out: list[Payload] = []
         if last is not None and MAX_CORE_DT_S < now_s - last <= MAX_GAP_S:
             n = math.ceil((now_s - last) / MAX_CORE_DT_S)
@@ -398,6 +427,28 @@ class AgentDaemon:
         setpoint, last_out = self.core.step(now_s, own, inbox)
         out.extend(last_out)
         return setpoint, out
+
+    def _clock_went_back(self, last_s: float, now_s: float) -> None:
+        """The daemon's clock went back (a restarted simulator, ``clock_resync``): what the
+        daemon keeps by time (peers' loss times, the clock check's windows, the last failed
+        tick) would lie in the future and never expire; it starts again. The core does the
+        same for its own state (:meth:`onboard.agent.AgentCore.step`)."""
+        log.warning(
+            "clock went back from %.3f to %.3f s: restarting time-keyed state", last_s, now_s
+        )
+        self._lost_since.clear()
+        self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.peer_timeout_s)
+        self._step_error_s = -math.inf
+        self._newest_frame_s = -math.inf
+
+    def _admit(self, msg: Payload, now_s: float) -> bool:
+        """The replay check (:mod:`onboard.daemon.replay`): duplicates and out-of-window
+        sequence numbers are counted and dropped before anything looks at them."""
+        reason = self.seq_window.admit(msg.sender, type(msg), msg.seq, msg.stamp_s, now_s)
+        if reason is None:
+            return True
+        self.drops.drop(reason, f"{type(msg).__name__} seq {msg.seq} from {msg.sender}")
+        return reason == "seq_resync"
 
     def _fly(self, now_s: float, tel: Telemetry, setpoint) -> list[str]:
         """Send the setpoint, or zero when unsafe; return the active alarms."""
@@ -413,6 +464,11 @@ class AgentDaemon:
             alarms.append(Alarm.AUTOPILOT_STALE)
         if self.bearings.age_s(now_s) > c.limits.stale_s:
             alarms.append(Alarm.BEARINGS_STALE)
+        if now_s - self._step_error_s <= STEP_ERROR_ALARM_S:
+            alarms.append(Alarm.STEP_ERROR)
+        clock_fault = getattr(self.clock, "fault", None)
+        if clock_fault is not None and (fault := clock_fault()) is not None:
+            alarms.append(fault)  # clock_jump / clock_resync (onboard.daemon.clock)
         for event in self.link.events():
             if event.kind == "stream_stopped" and self.state.get() == "flying":
                 self.state.set("pilot", event.detail)
@@ -428,6 +484,7 @@ class AgentDaemon:
                 or skewed
                 or Alarm.RIGIDITY_LOST in alarms
                 or Alarm.BEARINGS_STALE in alarms
+                or Alarm.STEP_ERROR in alarms
             )
             if safe:
                 v = setpoint.v_body

@@ -63,10 +63,13 @@ def bearing_rate(beta: Vec3, chi: float, u_ij: Vec3, w_i: float) -> Vec3:
 
 
 def predict_bearing(beta: Vec3, chi: float, u_ij: Vec3, w_i: float, dt: float) -> Vec3:
-    """One Euler step of eq. 7 followed by renormalization onto the unit sphere."""
+    """One Euler step of eq. 7 followed by renormalization onto the unit sphere. A step that
+    lands on the origin (or overflows) has no direction: the bearing is kept (issue 23)."""
     d = bearing_rate(beta, chi, u_ij, w_i)
     x, y, z = beta[0] + dt * d[0], beta[1] + dt * d[1], beta[2] + dt * d[2]
     n = math.sqrt(x * x + y * y + z * z)
+    if not (n > 0.0 and math.isfinite(n)):
+        return beta
     return (x / n, y / n, z / n)
 
 
