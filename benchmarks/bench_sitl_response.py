@@ -47,6 +47,7 @@ from pymavlink import mavutil
 from messages import mavlink as mv
 from messages.codec import MessageError, decode
 from messages.sim import Truth
+from sim.dynamics import step_metrics
 
 HOVER_S, STEP_S, STOP_S, YAW_STEP_S = 10.0, 8.0, 6.0, 6.0
 STEP_V_M_S, STEP_R_RAD_S = 1.0, 0.5
@@ -58,27 +59,6 @@ TOLERANCE = 0.03
 
 
 # --- metrics (pure) -------------------------------------------------------------------------------
-def step_metrics(t_s: np.ndarray, y: np.ndarray, t_step_s: float, target: float) -> dict:
-    """Response of ``y(t)`` to a step to ``target`` at ``t_step_s``: delay (first 10 %), rise
-    time (10 -> 90 %), overshoot (peak above the target, fraction) and final value (mean of
-    the last 2 s)."""
-    sel = t_s >= t_step_s
-    t, v = t_s[sel] - t_step_s, y[sel]
-
-    def first(level: float) -> float:
-        k = np.nonzero(v >= level * target)[0]
-        return float(t[k[0]]) if len(k) else math.nan
-
-    t10, t90 = first(0.1), first(0.9)
-    final = float(np.mean(v[t >= t[-1] - 2.0])) if len(t) else math.nan
-    return {
-        "delay_s": t10,
-        "rise_s": t90 - t10,
-        "overshoot": float(np.max(v) / target - 1.0) if len(v) else math.nan,
-        "final": final,
-    }
-
-
 def body_x(v_ned: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Heading-frame forward velocity ``cos(yaw) vn + sin(yaw) ve``, (n,)."""
     return np.cos(yaw) * v_ned[:, 0] + np.sin(yaw) * v_ned[:, 1]
