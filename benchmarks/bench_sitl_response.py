@@ -17,12 +17,14 @@ Two parts, each run on both autopilots in the same invocation:
   ground-station port, each autopilot's LOCAL_POSITION_NED and ATTITUDE (50 Hz) to compare the
   odometry the daemons fly on with the truth.
 
-Without a SITL binary (``--sitl``, ``$BEARINGFLOCK_SITL`` or ``arducopter`` on PATH) it says
+The built-in simulator is measured with its ideal and its realistic dynamics (``--dynamics``),
+so the table shows SITL, ideal and realistic side by side. Without a SITL binary (``--sitl``, ``$BEARINGFLOCK_SITL`` or ``arducopter`` on PATH) it says
 so and measures the built-in simulator only. Usage::
 
     python benchmarks/bench_sitl_response.py                      # both parts, both autopilots
     python benchmarks/bench_sitl_response.py --part team --duration 90 --stamps common
     python benchmarks/bench_sitl_response.py --quick              # 30 s mission
+    python benchmarks/bench_sitl_response.py --dynamics realistic # built-in: realistic only
 
 Every process it starts is stopped at the end; ``--out DIR`` keeps the logs and the recorded
 series (``response_<autopilot>.npz``, ``team_<autopilot>.npz``).
@@ -175,14 +177,21 @@ def fly_script(url: str, now: Callable[[], float | None], log: Callable[[str], N
     return {"marks": marks, "lpn": np.array(lpn), "att": np.array(att)}
 
 
-def response_builtin(log: Callable[[str], None]) -> tuple[np.ndarray, dict]:
-    """The script against the built-in ArduPilot flavour (in process, TCP, real time)."""
+def response_builtin(
+    log: Callable[[str], None], dynamics: str = "ideal"
+) -> tuple[np.ndarray, dict]:
+    """The script against the built-in ArduPilot flavour (in process, TCP, real time), with
+    the ideal or the realistic dynamics (:mod:`sim.dynamics`)."""
+    from sim.dynamics import RealisticConfig
     from sim.server import SimConfig, SimServer, free_port_base
     from sim.world import grid_layout
 
     base = free_port_base(1, span=60)
     p, yaw = grid_layout(1)
-    server = SimServer(SimConfig(p, yaw, flavour="ardupilot", tcp_base=base, gcs_port=None))
+    realistic = RealisticConfig() if dynamics == "realistic" else None
+    server = SimServer(
+        SimConfig(p, yaw, flavour="ardupilot", tcp_base=base, gcs_port=None, realistic=realistic)
+    )
     rec = Recorder()
     server.hooks.append(
         lambda t, w: rec.add(t, w.p_ned[0], w.v_ned[0], w.yaw_rad[0], w.yaw_rate_radps[0])
@@ -273,7 +282,7 @@ def response_metrics(truth: np.ndarray, flown: dict) -> dict:
 # --- part 2: the team -----------------------------------------------------------------------------
 def team_run(
     autopilot: str, duration_s: float, out: Path, stamps: str, sensors: str,
-    binary: Path | None, log: Callable[[str], None], seed: int = 0,
+    binary: Path | None, log: Callable[[str], None], seed: int = 0, dynamics: str = "ideal",
 ) -> dict:  # fmt: skip
     """The demo mission with 3 vehicles (module docstring); returns the metrics."""
     from groundstation.demo import (
@@ -313,7 +322,8 @@ def team_run(
     truth: list[tuple[float, ...]] = []
     truth_sub = None
     try:
-        procs.start("sim", [*simulator_args(n, "ardupilot", out, ports, fleet, seed), *extra])
+        sim_args = simulator_args(n, "ardupilot", out, ports, fleet, seed, dynamics=dynamics)
+        procs.start("sim", [*sim_args, *extra])
         if autopilot == "sitl":
             gcs = MavlinkListener([parse_endpoint(f"udp:127.0.0.1:{ports.gcs}")],
                                   request_streams=False).start()  # fmt: skip
@@ -541,6 +551,10 @@ def main() -> None:
     parser.add_argument("--sensors", choices=("flow", "gps"), default="flow")
     parser.add_argument("--sitl", type=Path, default=None)
     parser.add_argument("--only", choices=("sitl", "builtin"), default=None)
+    parser.add_argument(
+        "--dynamics", choices=("ideal", "realistic", "both"), default="both",
+        help="the built-in simulator's model(s) measured (sim/dynamics.py)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--quick", action="store_true", help="30 s mission")
     args = parser.parse_args()
@@ -552,7 +566,12 @@ def main() -> None:
     except SitlError as exc:
         print(f"SITL not measured: {exc}")
         binary = None
-    autopilots = [a for a in ("sitl", "builtin") if args.only in (None, a)]
+    models = ("ideal", "realistic") if args.dynamics == "both" else (args.dynamics,)
+    autopilots = [
+        a
+        for a in ("sitl", *(f"builtin-{m}" for m in models))
+        if args.only in (None, a.split("-")[0])
+    ]
     log = print
     if args.part in ("response", "both"):
         res: dict[str, dict] = {}
@@ -561,7 +580,9 @@ def main() -> None:
                 continue
             print(f"response: {ap}", flush=True)
             truth, flown = (
-                response_sitl(binary, args.sensors, log) if ap == "sitl" else response_builtin(log)
+                response_sitl(binary, args.sensors, log)
+                if ap == "sitl"
+                else response_builtin(log, ap.split("-")[1])
             )
             np.savez_compressed(out / f"response_{ap}.npz", truth=truth, lpn=flown["lpn"],
                                 att=flown["att"], marks=json.dumps(flown["marks"]))  # fmt: skip
@@ -573,8 +594,9 @@ def main() -> None:
             if ap == "sitl" and binary is None:
                 continue
             print(f"team: {ap}, {duration:g} s mission", flush=True)
-            res[ap] = team_run(ap, duration, out / f"team_{ap}", args.stamps, args.sensors,
-                               binary, log)  # fmt: skip
+            res[ap] = team_run(ap.split("-")[0], duration, out / f"team_{ap}", args.stamps,
+                               args.sensors, binary, log,
+                               dynamics=ap.split("-")[1] if "-" in ap else "ideal")  # fmt: skip
         print(f"\nteam of 3, demo mission {duration:g} s (stamps {args.stamps}, "
               f"sensors {args.sensors})\n" + table(res))  # fmt: skip
     print(f"\nlogs and series in {out}")

@@ -18,7 +18,9 @@ dynamics"; ``benchmarks/bench_sitl_response.py`` measures both side by side):
 * the **yaw rate** goes through the same delay and second-order shaping;
 * an **EKF-like report**: the velocity the autopilot reports is the true one of ``T_r`` ago
   (stamping delay) plus white noise plus a slowly varying bias in the heading frame (an OU
-  process with a long time constant, different per vehicle: optical flow's bias); the attitude
+  process with a long time constant, different per vehicle: optical flow's bias), and since
+  the autopilot's velocity loop closes on that estimate, the truth flies the command minus the
+  bias (a vehicle told to stop drifts at a few cm/s, as SITL does); the attitude
   has white noise and a slowly varying yaw bias; the reported horizontal position
   dead-reckons the velocity error (optical flow has no absolute position).
 

@@ -22,7 +22,8 @@ write command arrays.
 ``realistic`` (a :class:`sim.dynamics.RealisticConfig`) replaces the lag of velocity commands
 and yaw-rate commands by realistic multicopter dynamics (:mod:`sim.dynamics`: command delay,
 shaped response with overshoot, tilt to accelerate, hover wander) and the report by an EKF-like
-one (stamping delay, velocity noise and slowly varying bias, attitude noise and yaw bias);
+one (stamping delay, velocity noise and slowly varying bias, attitude noise and yaw bias); the
+autopilot flies on its estimate, so a vehicle told to stop drifts at minus its velocity bias;
 position and yaw holds keep the ideal laws, flown through the tilt loop. ``None`` (the default)
 is the ideal kinematic model of the paper reproductions.
 
@@ -211,6 +212,9 @@ class World:
         st, cfg = self.rstate, self.realistic
         assert st is not None and cfg is not None
         v_old, r_old = self.v_ned.copy(), self.yaw_rate_radps.copy()
+        # the autopilot flies its own estimate: its velocity loop brings the *reported*
+        # velocity (truth + bias) to the command, so the truth flies the command minus the bias
+        v_cmd = v_cmd - np.einsum("nij,nj->ni", rot_z(self.yaw_rad), st.vel_bias_heading)
         # position holds: the ideal law's velocity, flown by the tilt loop
         v, a, r = rd.advance(st, self.v_ned, self.a_ned, self.yaw_rate_radps, v_cmd, r_cmd,
                              dt_s, cfg, direct=self.hold_active)  # fmt: skip

@@ -126,3 +126,19 @@ def test_bad_parameters_are_refused(name: str) -> None:
         RealisticConfig(**{name: 0.0})
     with pytest.raises(ValueError, match="cmd_delay_s"):
         RealisticConfig(cmd_delay_s=-0.1)
+
+
+def test_a_stopped_vehicle_drifts_at_minus_its_bias_while_its_report_reads_zero() -> None:
+    cfg = RealisticConfig(seed=2, wander_accel_std_mps2=0.0, vel_bias_tau_s=1e6)
+    w = World(AIR, [0.7], realistic=cfg, dt_s=DT)
+    w.command_velocity(0, (0.0, 0.0, 0.0), body=True)
+    for _ in range(1000):
+        w.step(DT)
+    assert w.rstate is not None
+    bias_ned = rd_rot(w.yaw_rad)[0] @ w.rstate.vel_bias_heading[0]
+    assert np.linalg.norm(bias_ned[:2]) > 0.005
+    np.testing.assert_allclose(w.v_ned[0, :2], -bias_ned[:2], atol=2e-3)
+    reported = np.mean(
+        [observe(w, SensorNoise(), np.random.default_rng(k)).v_ned[0] for k in range(200)], axis=0
+    )
+    np.testing.assert_allclose(reported[:2], 0.0, atol=0.005)
