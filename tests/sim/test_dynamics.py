@@ -142,3 +142,25 @@ def test_a_stopped_vehicle_drifts_at_minus_its_bias_while_its_report_reads_zero(
         [observe(w, SensorNoise(), np.random.default_rng(k)).v_ned[0] for k in range(200)], axis=0
     )
     np.testing.assert_allclose(reported[:2], 0.0, atol=0.005)
+
+
+def test_the_server_flies_the_realistic_model_when_configured() -> None:
+    from sim.server import SimConfig, SimServer, free_port_base
+
+    p, yaw = np.array([[0.0, 0.0, -5.0]]), np.zeros(1)
+    base = free_port_base(1, span=60)
+    server = SimServer(SimConfig(p, yaw, tcp_base=base, flavour="ardupilot", gcs_port=None,
+                                 lockstep=True, realistic=RealisticConfig(seed=4)))  # fmt: skip
+    try:
+        assert server.world.rstate is not None
+        for _ in range(500):
+            server.tick()
+        assert np.linalg.norm(server.world.v_ned[0, :2]) > 0.005  # hover wander
+        ideal = SimServer(SimConfig(p, yaw, tcp_base=base + 30, flavour="ardupilot",
+                                    gcs_port=None, lockstep=True))  # fmt: skip
+        try:
+            assert ideal.world.rstate is None
+        finally:
+            ideal.close()
+    finally:
+        server.close()
