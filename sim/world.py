@@ -223,8 +223,8 @@ class World:
             _, _, r_ideal = lag_step(v_old, r_old, v_cmd, r_cmd, dt_s, self.config)
             r[yaw_hold] = st.r_ref[yaw_hold] = r_ideal[yaw_hold]
             st.r_ref_rate[yaw_hold] = 0.0
-        grounded = self.on_ground() & (v_cmd[:, 2] >= 0.0)
-        v[grounded, :2], a[grounded] = 0.0, 0.0
+        grounded = self.on_ground() & (v_cmd[:, 2] >= 0.0)  # resting, not asked to climb
+        v[grounded], a[grounded] = 0.0, 0.0  # no wander lifts it off the ground
         return a, v, r
 
 

@@ -164,3 +164,15 @@ def test_the_server_flies_the_realistic_model_when_configured() -> None:
             ideal.close()
     finally:
         server.close()
+
+
+def test_a_vehicle_on_the_ground_rests_until_it_is_asked_to_climb() -> None:
+    """The wander must not lift a landed vehicle (an autopilot then refuses the take-off)."""
+    w = World(np.zeros((1, 3)), [0.0], realistic=RealisticConfig(seed=0), dt_s=DT)
+    for _ in range(2000):
+        w.step(DT)
+    assert np.all(w.p_ned == 0.0) and np.all(w.v_ned == 0.0)
+    w.command_hold(0, (0.0, 0.0, -3.0))
+    for _ in range(1000):
+        w.step(DT)
+    assert w.p_ned[0, 2] < -2.5
