@@ -283,6 +283,7 @@ def response_metrics(truth: np.ndarray, flown: dict) -> dict:
 def team_run(
     autopilot: str, duration_s: float, out: Path, stamps: str, sensors: str,
     binary: Path | None, log: Callable[[str], None], seed: int = 0, dynamics: str = "ideal",
+    paper_sfm: bool = False,
 ) -> dict:  # fmt: skip
     """The demo mission with 3 vehicles (module docstring); returns the metrics."""
     from groundstation.demo import (
@@ -314,6 +315,9 @@ def team_run(
                  sensors, "--sitl-instance", str(instance), "--sitl-stamps", stamps,
                  "--sitl-param", FAST_ARMING]  # fmt: skip
     fleet_path = write_demo_files(out, plan, ports, fleet, "formation-active", 0.0, True, instance)
+    if paper_sfm:  # paper 000's observer, without the safeguards against a biased odometry
+        with fleet_path.open("a") as f:
+            f.write("[sfm]\nbias_speed_m_s = 0.0\nwander_max = 0.0\n")
     procs = Processes(out)
     ev = None
     gcs = None
@@ -552,6 +556,10 @@ def main() -> None:
     parser.add_argument("--sitl", type=Path, default=None)
     parser.add_argument("--only", choices=("sitl", "builtin"), default=None)
     parser.add_argument(
+        "--paper-sfm", action="store_true",
+        help="team: the daemons run paper 000's SfM observer ([sfm] safeguards off)",
+    )  # fmt: skip
+    parser.add_argument(
         "--dynamics", choices=("ideal", "realistic", "both"), default="both",
         help="the built-in simulator's model(s) measured (sim/dynamics.py)",
     )  # fmt: skip
@@ -596,7 +604,8 @@ def main() -> None:
             print(f"team: {ap}, {duration:g} s mission", flush=True)
             res[ap] = team_run(ap.split("-")[0], duration, out / f"team_{ap}", args.stamps,
                                args.sensors, binary, log,
-                               dynamics=ap.split("-")[1] if "-" in ap else "ideal")  # fmt: skip
+                               dynamics=ap.split("-")[1] if "-" in ap else "ideal",
+                               paper_sfm=args.paper_sfm)  # fmt: skip
         print(f"\nteam of 3, demo mission {duration:g} s (stamps {args.stamps}, "
               f"sensors {args.sensors})\n" + table(res))  # fmt: skip
     print(f"\nlogs and series in {out}")
