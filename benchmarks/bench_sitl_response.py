@@ -25,6 +25,7 @@ so and measures the built-in simulator only. Usage::
     python benchmarks/bench_sitl_response.py --part team --duration 90 --stamps common
     python benchmarks/bench_sitl_response.py --quick              # 30 s mission
     python benchmarks/bench_sitl_response.py --dynamics realistic # built-in: realistic only
+    python benchmarks/bench_sitl_response.py --part team --paper-sfm  # without the [sfm] safeguards
 
 Every process it starts is stopped at the end; ``--out DIR`` keeps the logs and the recorded
 series (``response_<autopilot>.npz``, ``team_<autopilot>.npz``).
