@@ -17,12 +17,15 @@ Two parts, each run on both autopilots in the same invocation:
   ground-station port, each autopilot's LOCAL_POSITION_NED and ATTITUDE (50 Hz) to compare the
   odometry the daemons fly on with the truth.
 
-Without a SITL binary (``--sitl``, ``$BEARINGFLOCK_SITL`` or ``arducopter`` on PATH) it says
+The built-in simulator is measured with its ideal and its realistic dynamics (``--dynamics``),
+so the table shows SITL, ideal and realistic side by side. Without a SITL binary (``--sitl``, ``$BEARINGFLOCK_SITL`` or ``arducopter`` on PATH) it says
 so and measures the built-in simulator only. Usage::
 
     python benchmarks/bench_sitl_response.py                      # both parts, both autopilots
     python benchmarks/bench_sitl_response.py --part team --duration 90 --stamps common
     python benchmarks/bench_sitl_response.py --quick              # 30 s mission
+    python benchmarks/bench_sitl_response.py --dynamics realistic # built-in: realistic only
+    python benchmarks/bench_sitl_response.py --part team --paper-sfm  # without the [sfm] safeguards
 
 Every process it starts is stopped at the end; ``--out DIR`` keeps the logs and the recorded
 series (``response_<autopilot>.npz``, ``team_<autopilot>.npz``).
@@ -47,6 +50,7 @@ from pymavlink import mavutil
 from messages import mavlink as mv
 from messages.codec import MessageError, decode
 from messages.sim import Truth
+from sim.dynamics import step_metrics
 
 HOVER_S, STEP_S, STOP_S, YAW_STEP_S = 10.0, 8.0, 6.0, 6.0
 STEP_V_M_S, STEP_R_RAD_S = 1.0, 0.5
@@ -58,27 +62,6 @@ TOLERANCE = 0.03
 
 
 # --- metrics (pure) -------------------------------------------------------------------------------
-def step_metrics(t_s: np.ndarray, y: np.ndarray, t_step_s: float, target: float) -> dict:
-    """Response of ``y(t)`` to a step to ``target`` at ``t_step_s``: delay (first 10 %), rise
-    time (10 -> 90 %), overshoot (peak above the target, fraction) and final value (mean of
-    the last 2 s)."""
-    sel = t_s >= t_step_s
-    t, v = t_s[sel] - t_step_s, y[sel]
-
-    def first(level: float) -> float:
-        k = np.nonzero(v >= level * target)[0]
-        return float(t[k[0]]) if len(k) else math.nan
-
-    t10, t90 = first(0.1), first(0.9)
-    final = float(np.mean(v[t >= t[-1] - 2.0])) if len(t) else math.nan
-    return {
-        "delay_s": t10,
-        "rise_s": t90 - t10,
-        "overshoot": float(np.max(v) / target - 1.0) if len(v) else math.nan,
-        "final": final,
-    }
-
-
 def body_x(v_ned: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Heading-frame forward velocity ``cos(yaw) vn + sin(yaw) ve``, (n,)."""
     return np.cos(yaw) * v_ned[:, 0] + np.sin(yaw) * v_ned[:, 1]
@@ -195,14 +178,21 @@ def fly_script(url: str, now: Callable[[], float | None], log: Callable[[str], N
     return {"marks": marks, "lpn": np.array(lpn), "att": np.array(att)}
 
 
-def response_builtin(log: Callable[[str], None]) -> tuple[np.ndarray, dict]:
-    """The script against the built-in ArduPilot flavour (in process, TCP, real time)."""
+def response_builtin(
+    log: Callable[[str], None], dynamics: str = "ideal"
+) -> tuple[np.ndarray, dict]:
+    """The script against the built-in ArduPilot flavour (in process, TCP, real time), with
+    the ideal or the realistic dynamics (:mod:`sim.dynamics`)."""
+    from sim.dynamics import RealisticConfig
     from sim.server import SimConfig, SimServer, free_port_base
     from sim.world import grid_layout
 
     base = free_port_base(1, span=60)
     p, yaw = grid_layout(1)
-    server = SimServer(SimConfig(p, yaw, flavour="ardupilot", tcp_base=base, gcs_port=None))
+    realistic = RealisticConfig() if dynamics == "realistic" else None
+    server = SimServer(
+        SimConfig(p, yaw, flavour="ardupilot", tcp_base=base, gcs_port=None, realistic=realistic)
+    )
     rec = Recorder()
     server.hooks.append(
         lambda t, w: rec.add(t, w.p_ned[0], w.v_ned[0], w.yaw_rad[0], w.yaw_rate_radps[0])
@@ -293,7 +283,8 @@ def response_metrics(truth: np.ndarray, flown: dict) -> dict:
 # --- part 2: the team -----------------------------------------------------------------------------
 def team_run(
     autopilot: str, duration_s: float, out: Path, stamps: str, sensors: str,
-    binary: Path | None, log: Callable[[str], None], seed: int = 0,
+    binary: Path | None, log: Callable[[str], None], seed: int = 0, dynamics: str = "ideal",
+    paper_sfm: bool = False,
 ) -> dict:  # fmt: skip
     """The demo mission with 3 vehicles (module docstring); returns the metrics."""
     from groundstation.demo import (
@@ -325,6 +316,9 @@ def team_run(
                  sensors, "--sitl-instance", str(instance), "--sitl-stamps", stamps,
                  "--sitl-param", FAST_ARMING]  # fmt: skip
     fleet_path = write_demo_files(out, plan, ports, fleet, "formation-active", 0.0, True, instance)
+    if paper_sfm:  # paper 000's observer, without the safeguards against a biased odometry
+        with fleet_path.open("a") as f:
+            f.write("[sfm]\nbias_speed_m_s = 0.0\nwander_max = 0.0\n")
     procs = Processes(out)
     ev = None
     gcs = None
@@ -333,7 +327,8 @@ def team_run(
     truth: list[tuple[float, ...]] = []
     truth_sub = None
     try:
-        procs.start("sim", [*simulator_args(n, "ardupilot", out, ports, fleet, seed), *extra])
+        sim_args = simulator_args(n, "ardupilot", out, ports, fleet, seed, dynamics=dynamics)
+        procs.start("sim", [*sim_args, *extra])
         if autopilot == "sitl":
             gcs = MavlinkListener([parse_endpoint(f"udp:127.0.0.1:{ports.gcs}")],
                                   request_streams=False).start()  # fmt: skip
@@ -561,6 +556,14 @@ def main() -> None:
     parser.add_argument("--sensors", choices=("flow", "gps"), default="flow")
     parser.add_argument("--sitl", type=Path, default=None)
     parser.add_argument("--only", choices=("sitl", "builtin"), default=None)
+    parser.add_argument(
+        "--paper-sfm", action="store_true",
+        help="team: the daemons run paper 000's SfM observer ([sfm] safeguards off)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--dynamics", choices=("ideal", "realistic", "both"), default="both",
+        help="the built-in simulator's model(s) measured (sim/dynamics.py)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--quick", action="store_true", help="30 s mission")
     args = parser.parse_args()
@@ -572,7 +575,12 @@ def main() -> None:
     except SitlError as exc:
         print(f"SITL not measured: {exc}")
         binary = None
-    autopilots = [a for a in ("sitl", "builtin") if args.only in (None, a)]
+    models = ("ideal", "realistic") if args.dynamics == "both" else (args.dynamics,)
+    autopilots = [
+        a
+        for a in ("sitl", *(f"builtin-{m}" for m in models))
+        if args.only in (None, a.split("-")[0])
+    ]
     log = print
     if args.part in ("response", "both"):
         res: dict[str, dict] = {}
@@ -581,7 +589,9 @@ def main() -> None:
                 continue
             print(f"response: {ap}", flush=True)
             truth, flown = (
-                response_sitl(binary, args.sensors, log) if ap == "sitl" else response_builtin(log)
+                response_sitl(binary, args.sensors, log)
+                if ap == "sitl"
+                else response_builtin(log, ap.split("-")[1])
             )
             np.savez_compressed(out / f"response_{ap}.npz", truth=truth, lpn=flown["lpn"],
                                 att=flown["att"], marks=json.dumps(flown["marks"]))  # fmt: skip
@@ -593,8 +603,10 @@ def main() -> None:
             if ap == "sitl" and binary is None:
                 continue
             print(f"team: {ap}, {duration:g} s mission", flush=True)
-            res[ap] = team_run(ap, duration, out / f"team_{ap}", args.stamps, args.sensors,
-                               binary, log)  # fmt: skip
+            res[ap] = team_run(ap.split("-")[0], duration, out / f"team_{ap}", args.stamps,
+                               args.sensors, binary, log,
+                               dynamics=ap.split("-")[1] if "-" in ap else "ideal",
+                               paper_sfm=args.paper_sfm)  # fmt: skip
         print(f"\nteam of 3, demo mission {duration:g} s (stamps {args.stamps}, "
               f"sensors {args.sensors})\n" + table(res))  # fmt: skip
     print(f"\nlogs and series in {out}")

@@ -432,6 +432,7 @@ def simulator_args(
     fleet: str,
     seed: int = 0,
     speedup: float = 1.0,
+    dynamics: str = "ideal",
 ) -> list[str]:
     """``python`` arguments of the demo's simulator: the layout of :func:`write_demo_files`,
     MAVLink over UDP where the fleet file's daemons dial (for either flavour: the ArduPilot
@@ -443,7 +444,7 @@ def simulator_args(
         "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
         "--bind-base", str(ports.mavlink + vehicles + 5),
         "--camera-fov", str(CAMERA_FOV_DEG), "--camera-range", str(CAMERA_RANGE_M),
-        "--seed", str(seed), "--quiet", "--speedup", str(speedup),
+        "--seed", str(seed), "--quiet", "--speedup", str(speedup), "--dynamics", dynamics,
     ]  # fmt: skip
 
 
@@ -467,6 +468,7 @@ def run_demo(
     sitl_sensors: str = "flow",
     sitl_params: Sequence[str] = (),
     record: bool = True,
+    dynamics: str = "ideal",
 ) -> dict[str, Any]:
     """Run the whole mission (module docstring) and return its summary.
 
@@ -485,7 +487,8 @@ def run_demo(
     time, and the agents take their bearings from those images. ``speedup`` is the simulator's
     (< 1 gives rendering the wall time it needs). ``duration_s`` (mission, from the first truth
     sample) and the landing timeout are simulation time; ``on_tick`` gets the mission's
-    simulation seconds so far."""
+    simulation seconds so far. ``dynamics`` is the built-in simulator's model (``ideal`` or
+    ``realistic``, :mod:`sim.dynamics`)."""
     from sim.server import free_port_base
 
     base = free_port_base(vehicles + 2, span=60, seed=None)
@@ -529,7 +532,8 @@ def run_demo(
     try:
         procs.start(
             "sim",
-            [*simulator_args(vehicles, flavour, out, ports, fleet, seed, speedup), *camera_args,
+            [*simulator_args(vehicles, flavour, out, ports, fleet, seed, speedup, dynamics),
+             *camera_args,
              *sitl_args],
         )  # fmt: skip
         for i in range(vehicles):

@@ -172,6 +172,13 @@ def demo(
     bearings: Annotated[
         str, typer.Option(help="sim (virtual camera) or camera (rendered images + pipeline).")
     ] = "sim",
+    dynamics: Annotated[
+        str,
+        typer.Option(
+            help="Built-in simulator: ideal (kinematic, exact telemetry) or realistic "
+            "(multicopter dynamics and EKF-like telemetry fitted to ArduCopter SITL)."
+        ),
+    ] = "ideal",
     speedup: Annotated[
         float | None,
         typer.Option(
@@ -249,6 +256,9 @@ def demo(
         raise typer.Exit(2)
     if autopilot not in ("builtin", "ardupilot-sitl"):
         typer.echo("error: --autopilot must be builtin or ardupilot-sitl", err=True)
+        raise typer.Exit(2)
+    if dynamics not in ("ideal", "realistic"):
+        typer.echo("error: --dynamics must be ideal or realistic", err=True)
         raise typer.Exit(2)
     if autopilot == "ardupilot-sitl":
         from sim.sitl import SENSOR_DEFAULTS, SitlError, find_sitl
@@ -339,6 +349,7 @@ def demo(
                 camera_files=camera_files, markers_file=markers_file, speedup=speed,
                 render_rate_hz=render_rate, loss=loss, rigidity=rigidity, autopilot=autopilot,
                 sitl=sitl, sitl_sensors=sitl_sensors, sitl_params=tuple(sitl_param or ()),
+                dynamics=dynamics,
             )  # fmt: skip
     except KeyboardInterrupt:
         console.print("[yellow]interrupted: every process was stopped[/yellow]")

@@ -129,6 +129,13 @@ class AgentCore:
                 h_other=cfg.h_other,
                 h_floor=cfg.h_floor,
                 window=WindowAverage(cfg.e_window_s),
+                bias_speed_m_s=cfg.sfm_bias_speed_m_s,
+                folds_forget_s=cfg.sfm_folds_forget_s,
+                wander_window=(
+                    WindowAverage(cfg.sfm_wander_window_s) if cfg.sfm_wander_max > 0.0 else None
+                ),
+                wander_max=cfg.sfm_wander_max,
+                folds_cap=0.9 * cfg.converged_e_folds,
             )
         self.yaw_edges = {j: RelativeYawEdge() for j in self.reciprocal}
         # time alignment of the SfM observers (onboard.estimation.time_alignment): own and

@@ -38,6 +38,23 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     h_other: float = 10.0
     h_floor: float = 1e-3
     e_window_s: float = 1.0
+    sfm_bias_speed_m_s: float = 0.1
+    """Odometry velocity error the SfM observers tolerate (:func:`~onboard.estimation.\
+sfm_observer.excitation_gate`): they correct their inverse depth only where the relative
+    velocity normal to the bearing exceeds it (fully above twice it). Real autopilots' velocity
+    is off by 1-5 cm/s (ArduCopter SITL, docs/sim.md), and a hovering team whose formation
+    control flies against that bias let the observers walk away (issue 22). 0: paper 000's
+    observer (the paper reproductions, ``sim/scenarios.py``). Not in the paper."""
+    sfm_folds_forget_s: float = 0.0
+    """The e-foldings of excitation (:attr:`SfmEdge.e_folds`) are forgotten over this time
+    (0: never, paper 000): without recent excitation the scale is no longer claimed converged,
+    and the active motion (gate of eq. 16, :attr:`converged_e_folds`) resumes. Not in the
+    paper."""
+    sfm_wander_window_s: float = 2.0
+    sfm_wander_max: float = 0.02
+    """While an observer's corrections moved its ``chihat`` by more than this fraction within
+    the last ``sfm_wander_window_s`` its e-foldings are held below :attr:`converged_e_folds`:
+    an estimate that wanders is not converged (0: not watched, paper 000). Not in the paper."""
     chi_min_inv_m: float = 0.02
     """SfM estimates below this (distance above 50 m) are not used as virtual measurements."""
     # localization (eq. 6)
@@ -147,3 +164,8 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             raise ValueError("excitation_relay_every must be >= 1")
         if self.p_norm >= 0.0:
             raise ValueError("p_norm must be negative (a soft minimum)")
+        for name in ("sfm_bias_speed_m_s", "sfm_folds_forget_s", "sfm_wander_max"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not self.sfm_wander_window_s > 0.0:
+            raise ValueError(f"sfm_wander_window_s must be > 0, got {self.sfm_wander_window_s}")

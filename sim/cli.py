@@ -27,6 +27,14 @@ def sim(
         int, typer.Option(min=0, help="Seed of the random layout and of all noise.")
     ] = 0,
     speedup: Annotated[float, typer.Option(help="Simulation time per wall second.")] = 1.0,
+    dynamics: Annotated[
+        str,
+        typer.Option(
+            help="ideal: the kinematic first-order lag, exact telemetry (paper reproductions); "
+            "realistic: tilt-to-accelerate, delay, overshoot, hover wander, EKF-like velocity "
+            "noise and bias, fitted to ArduCopter SITL (docs/sim.md)."
+        ),
+    ] = "ideal",
     lockstep: Annotated[
         bool, typer.Option(help="Advance only on SimStep messages (needs --zenoh).")
     ] = False,
@@ -149,6 +157,7 @@ def sim(
     from sim.autopilot.signing import load_key
     from sim.camera import CameraConfig, CameraPublisher
     from sim.clock import ClockPublisher
+    from sim.dynamics import RealisticConfig
     from sim.server import SimConfig, SimServer
     from sim.world import SensorNoise, formation_layout, grid_layout, random_layout
 
@@ -158,6 +167,8 @@ def sim(
         raise typer.BadParameter("--render-camera needs --markers and --zenoh (images go to Zenoh)")
     if render_encoding not in ("jpeg", "png"):
         raise typer.BadParameter("--render-encoding must be jpeg or png")
+    if dynamics not in ("ideal", "realistic"):
+        raise typer.BadParameter("--dynamics must be ideal or realistic")
     if autopilot not in ("builtin", "ardupilot-sitl"):
         raise typer.BadParameter("--autopilot must be builtin or ardupilot-sitl")
     if sitl_stamps not in ("own", "common"):
@@ -223,6 +234,7 @@ def sim(
             boot_streams=boot_streams,
             signing_key=key,
             noise=SensorNoise(seed=seed),
+            realistic=RealisticConfig(seed=seed) if dynamics == "realistic" else None,
         )
         camera = CameraConfig(
             camera_fov, camera_range, camera_noise, camera_dropout, camera_rate, seed

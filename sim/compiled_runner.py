@@ -88,6 +88,13 @@ def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
             raise ValueError(f"the compiled engine has no mode {c.mode!r}; use engine 'cores'")
         if c.rigidity_maintenance:
             raise ValueError("the compiled engine has no rigidity layer; use engine 'cores'")
+        safeguards = (c.sfm_bias_speed_m_s, c.sfm_folds_forget_s, c.sfm_wander_max)
+        if any(x != 0.0 for x in safeguards):
+            raise ValueError(
+                "the compiled engine runs paper 000's SfM observer: set sfm_bias_speed_m_s, "
+                "sfm_folds_forget_s and sfm_wander_max to 0 (sim.scenarios.PAPER_SFM) or use "
+                "engine 'cores'"
+            )
         if msgspec.structs.replace(c, agent_id=0) != team:
             raise ValueError("the compiled engine needs one configuration for the whole team")
     unsupported = {
@@ -95,6 +102,7 @@ def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
         "fov_deg": runner.fov_deg is not None,
         "range_pairs": bool(runner.range_pairs),
         "target_path": runner.target_path is not None,
+        "velocity_bias_m_s": runner.velocity_bias_m_s != 0.0,
     }
     bad = [k for k, v in unsupported.items() if v]
     if bad:

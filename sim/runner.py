@@ -53,6 +53,10 @@ class RunnerConfig:
     """Standard deviation of the angular noise of each bearing (per axis of the tangent plane)."""
     velocity_noise_m_s: float = 0.0
     yaw_rate_noise_rad_s: float = 0.0
+    velocity_bias_m_s: float = 0.0
+    """Standard deviation of a constant per-vehicle bias of the horizontal body-frame odometry
+    velocity (an optical-flow EKF's, sim/dynamics.py). Each vehicle flies on its biased
+    estimate: it reports ``v + b`` and truly moves at the setpoint minus ``b``."""
     yaw_offset_max_rad: float = math.pi
     """Odometry yaw offsets are drawn uniformly in ``[-max, max]``."""
     record_every: int = 5
@@ -264,6 +268,13 @@ def run(
     v_ned: list[tuple[float, ...]] = [(0.0, 0.0, 0.0)] * n
     cam_lag = round(runner.camera_latency_s / dt)
     in_flight: dict[int, list[tuple[BearingMeasurement, ...]]] = {}
+    bias = [(0.0, 0.0, 0.0)] * n
+    if runner.velocity_bias_m_s > 0.0:  # its own stream: the other draws stay the same
+        b_rng = np.random.default_rng([runner.seed, 22])
+        bias = [
+            (float(x), float(y), 0.0)
+            for x, y in b_rng.normal(0.0, runner.velocity_bias_m_s, (n, 2))
+        ]
     lag_v = min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0
     lag_w = min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0
     r_idx = 0
@@ -300,6 +311,9 @@ def run(
         setpoints = []
         for i, core in enumerate(cores):
             v, w = v_body[i], w_body[i]
+            if runner.velocity_bias_m_s > 0.0:
+                bi = bias[i]
+                v = (v[0] + bi[0], v[1] + bi[1], v[2])
             if nz is not None:
                 e = nz[i]
                 v = (v[0] + noise_v * e[0], v[1] + noise_v * e[1], v[2] + noise_v * e[2])
@@ -332,6 +346,9 @@ def run(
             r_idx += 1
         for i, sp in enumerate(setpoints):
             u, w = sp.v_body, sp.yaw_rate_rad_s
+            if runner.velocity_bias_m_s > 0.0:
+                bi = bias[i]
+                u = (u[0] - bi[0], u[1] - bi[1], u[2])
             c, s = math.cos(yaw[i]), math.sin(yaw[i])
             v = (c * u[0] - s * u[1], s * u[0] + c * u[1], u[2])  # commanded, NED
             if lag_v > 0.0:

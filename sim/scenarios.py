@@ -99,6 +99,15 @@ SCENARIOS: dict[str, Scenario] = {
 }
 
 
+PAPER_SFM: dict[str, object] = {
+    "sfm_bias_speed_m_s": 0.0,
+    "sfm_folds_forget_s": 0.0,
+    "sfm_wander_max": 0.0,
+}
+"""The flight stack's SfM safeguards against biased odometry (:class:`onboard.agent.AgentConfig`)
+turned off: the runner's odometry is exact unless asked, and the reproduction is the paper's."""
+
+
 def localization_prior(seed: int) -> tuple[FloatArray, FloatArray]:
     """The shared initial guess ``(phat0, psihat0)``: rotated, scaled by 0.6, noisy."""
     rng = np.random.default_rng([seed, 7])
@@ -129,6 +138,8 @@ def agent_configs(name: str, seed: int = 0, **overrides: object) -> list[AgentCo
             "desired_beta_body": desired_bearings(),
             "desired_yaw_rad": tuple(float(y) for y in YAW_DESIRED_RAD),
         }
+    # paper 000's observer: exact odometry, no gate, no forgetting, no wander watch
+    extra.update(PAPER_SFM)
     extra.update(overrides)
     return [
         AgentConfig(

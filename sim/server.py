@@ -40,6 +40,7 @@ from sim.autopilot import (
     make_autopilot,
 )
 from sim.clock import LockstepClock, RealTimeClock
+from sim.dynamics import RealisticConfig
 from sim.world import DynamicsConfig, SensorNoise, World, observe
 
 MAX_TICKS_PER_POLL = 10
@@ -75,6 +76,9 @@ class SimConfig:
     signing_key: bytes | None = None
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     noise: SensorNoise = field(default_factory=SensorNoise)
+    realistic: RealisticConfig | None = None
+    """Realistic multicopter dynamics and EKF-like telemetry (:mod:`sim.dynamics`, ``--dynamics
+    realistic``); ``None`` is the ideal kinematic model."""
 
     def __post_init__(self) -> None:
         if self.transport is None:
@@ -99,7 +103,10 @@ class SimServer:
 
     def __init__(self, config: SimConfig) -> None:
         self.config = config
-        self.world = World(config.p_ned, config.yaw_rad, config.dynamics)
+        self.world = World(
+            config.p_ned, config.yaw_rad, config.dynamics, realistic=config.realistic,
+            dt_s=config.dt_s,
+        )  # fmt: skip
         self.rng = np.random.default_rng(config.noise.seed)
         self.clock: RealTimeClock | LockstepClock
         if config.lockstep:

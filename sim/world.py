@@ -19,6 +19,14 @@ The ground is the plane ``z_ned = 0``: a vehicle never goes below it (``z_ned <=
 descending when it touches it. Every function is vectorized over vehicles; the autopilots only
 write command arrays.
 
+``realistic`` (a :class:`sim.dynamics.RealisticConfig`) replaces the lag of velocity commands
+and yaw-rate commands by realistic multicopter dynamics (:mod:`sim.dynamics`: command delay,
+shaped response with overshoot, tilt to accelerate, hover wander) and the report by an EKF-like
+one (stamping delay, velocity noise and slowly varying bias, attitude noise and yaw bias); the
+autopilot flies on its estimate, so a vehicle told to stop drifts at minus its velocity bias;
+position and yaw holds keep the ideal laws, flown through the tilt loop. ``None`` (the default)
+is the ideal kinematic model of the paper reproductions.
+
 Reported (measured) quantities are separate from truth: :func:`observe` adds optional seeded
 noise to velocity and attitude and derives roll and pitch from the horizontal specific force
 needed to accelerate and to hold against a wind (a level multicopter cannot accelerate).
@@ -34,6 +42,7 @@ import numpy as np
 
 from messages.formation import load_formation
 from onboard.geometry import FloatArray, rot_z, wrap_angle
+from sim import dynamics as rd
 
 GRAVITY_MPS2 = 9.80665
 
@@ -93,6 +102,11 @@ class World:
     yaw_rad: FloatArray
     config: DynamicsConfig = field(default_factory=DynamicsConfig)
     t_s: float = 0.0
+    realistic: rd.RealisticConfig | None = None
+    """Realistic dynamics and EKF-like report (:mod:`sim.dynamics`); ``None``: ideal."""
+    dt_s: float = 0.01
+    """Step the realistic model's delay lines are sized for (:meth:`step` takes any ``dt``)."""
+    rstate: rd.RealisticState | None = field(init=False, default=None)
     v_ned: FloatArray = field(init=False)
     yaw_rate_radps: FloatArray = field(init=False)
     a_ned: FloatArray = field(init=False)
@@ -121,6 +135,8 @@ class World:
         self.hold_active = np.zeros(n, dtype=bool)
         self.yaw_hold_rad = self.yaw_rad.copy()
         self.yaw_hold_active = np.zeros(n, dtype=bool)
+        if self.realistic is not None:
+            self.rstate = rd.initial_state(n, self.realistic, self.dt_s, self.p_ned, self.yaw_rad)
 
     @property
     def n(self) -> int:
@@ -169,7 +185,12 @@ class World:
             self.yaw_hold_active,
             self.config,
         )
-        a, v_new, r_new = lag_step(self.v_ned, self.yaw_rate_radps, v_cmd, r_cmd, dt_s, self.config)
+        if self.rstate is None:
+            a, v_new, r_new = lag_step(
+                self.v_ned, self.yaw_rate_radps, v_cmd, r_cmd, dt_s, self.config
+            )
+        else:
+            a, v_new, r_new = self._realistic_step(v_cmd, r_cmd, dt_s)
         resting = (self.p_ned[:, 2] >= 0.0) & (v_new[:, 2] >= 0.0)  # on the ground, not climbing
         v_new[resting] = 0.0
         a[resting] = 0.0
@@ -179,6 +200,32 @@ class World:
         self.p_ned, self.v_ned = ground_contact(p_new, v_new)
         self.yaw_rate_radps = r_new
         self.t_s += dt_s
+        if self.rstate is not None and self.realistic is not None:
+            rd.update_report_state(self.rstate, self.p_ned, self.v_ned, self.yaw_rad,
+                                   self.yaw_rate_radps, self.a_ned, dt_s, self.realistic)  # fmt: skip
+
+    def _realistic_step(
+        self, v_cmd: FloatArray, r_cmd: FloatArray, dt_s: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Truth step of the realistic model: velocity commands through the delay and the
+        shaped reference, holds straight into the tilt loop; on the ground no wander."""
+        st, cfg = self.rstate, self.realistic
+        assert st is not None and cfg is not None
+        v_old, r_old = self.v_ned.copy(), self.yaw_rate_radps.copy()
+        # the autopilot flies its own estimate: its velocity loop brings the *reported*
+        # velocity (truth + bias) to the command, so the truth flies the command minus the bias
+        v_cmd = v_cmd - np.einsum("nij,nj->ni", rot_z(self.yaw_rad), st.vel_bias_heading)
+        # position holds: the ideal law's velocity, flown by the tilt loop
+        v, a, r = rd.advance(st, self.v_ned, self.a_ned, self.yaw_rate_radps, v_cmd, r_cmd,
+                             dt_s, cfg, direct=self.hold_active)  # fmt: skip
+        yaw_hold = self.yaw_hold_active
+        if yaw_hold.any():
+            _, _, r_ideal = lag_step(v_old, r_old, v_cmd, r_cmd, dt_s, self.config)
+            r[yaw_hold] = st.r_ref[yaw_hold] = r_ideal[yaw_hold]
+            st.r_ref_rate[yaw_hold] = 0.0
+        grounded = self.on_ground() & (v_cmd[:, 2] >= 0.0)  # resting, not asked to climb
+        v[grounded], a[grounded] = 0.0, 0.0  # no wander lifts it off the ground
+        return a, v, r
 
 
 def commanded_velocity(
@@ -288,8 +335,21 @@ def tilt_from_specific_force(
 
 
 def observe(world: World, noise: SensorNoise, rng: np.random.Generator) -> Observation:
-    """Reported state: truth plus the configured noise, attitude leaning with the thrust."""
+    """Reported state: truth plus the configured noise, attitude leaning with the thrust; with
+    realistic dynamics the EKF-like report of :func:`sim.dynamics.report` plus that noise."""
     n = world.n
+    if world.rstate is not None and world.realistic is not None:
+        p, v_rep, a_old, yaw_t, rate, att = rd.report(world.rstate, world.realistic, rng)
+        roll, pitch = tilt_from_specific_force(
+            a_old, v_rep, yaw_t, np.asarray(noise.wind_ned_mps, dtype=float),
+            world.config.drag_per_s,
+        )  # fmt: skip
+        if noise.velocity_std_mps > 0.0:
+            v_rep = v_rep + rng.normal(0.0, noise.velocity_std_mps, size=(n, 3))
+        return Observation(
+            p_ned=p.copy(), v_ned=v_rep, roll_rad=roll + att[0], pitch_rad=pitch + att[1],
+            yaw_rad=wrap_angle(yaw_t + att[2]), yaw_rate_radps=rate.copy(),
+        )  # fmt: skip
     roll, pitch = tilt_from_specific_force(
         world.a_ned,
         world.v_ned,

@@ -58,6 +58,13 @@
     graph = "all"                     # whom a camera may see: "all" (the weights drop who is
                                       # out of view or range) or "formation" (its edges only)
     rate_hz = 20.0                    # the layer's steps (a slow outer loop), <= rates.core
+
+    [sfm]                             # the SfM observers against a biased odometry (0: off,
+                                      # paper 000's observer; onboard/agent.py AgentConfig)
+    bias_speed_m_s = 0.1              # no scale correction below this speed across a bearing
+    wander_window_s = 2.0             # an estimate corrected by more than wander_max within
+    wander_max = 0.02                 # wander_window_s is not converged (active motion on)
+    folds_forget_s = 0.0              # forget past excitation over this time (0: never)
     warmup_s = 5.0                    # no rigidity action for this long after the core starts,
                                       # while angle localization and the eigen-estimate converge
     eigen = "distributed"             # lambda from the distributed subspace iteration, or
@@ -83,6 +90,7 @@ Agent ids are the vehicle indices ``0..N-1`` (MAVLink system id = id + 1, PX4 SI
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -152,6 +160,16 @@ class RigiditySection(msgspec.Struct, forbid_unknown_fields=True):
     r_safe_m: float = 1.5
 
 
+class SfmSection(msgspec.Struct, forbid_unknown_fields=True):
+    """The SfM observers' safeguards against a biased odometry (onboard/agent.py AgentConfig;
+    0 turns each off: paper 000's observer)."""
+
+    bias_speed_m_s: float = 0.1
+    wander_window_s: float = 2.0
+    wander_max: float = 0.02
+    folds_forget_s: float = 0.0
+
+
 class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
     files: list[str] = msgspec.field(default_factory=list)
     markers: str = ""
@@ -175,6 +193,7 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
     zenoh: ZenohSection = msgspec.field(default_factory=ZenohSection)
     rigidity: RigiditySection = msgspec.field(default_factory=RigiditySection)
     camera: CameraSection = msgspec.field(default_factory=CameraSection)
+    sfm: SfmSection = msgspec.field(default_factory=SfmSection)
 
 
 class Fleet(msgspec.Struct, frozen=True):
@@ -293,6 +312,13 @@ def load_fleet(path: str | Path) -> Fleet:
             f"{path}: rigidity: need 0 < lambda_min < lambda_safe, got "
             f"{rig.lambda_min} and {rig.lambda_safe}"
         )
+    for name, value in msgspec.structs.asdict(config.sfm).items():
+        if not (value >= 0.0 and math.isfinite(value)) or (
+            name == "wander_window_s" and value == 0
+        ):
+            raise ConfigError(
+                f"{path}: sfm.{name}: must be finite and >= 0 (window > 0), got {value}"
+            )
     cam = config.camera
     if config.bearings == "camera" and not (cam.files and cam.markers):
         raise ConfigError(f"{path}: bearings = 'camera' needs camera.files and camera.markers")

@@ -104,6 +104,10 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
         lambda_safe=r.lambda_safe,
         lambda_min=r.lambda_min,
         r_safe_m=r.r_safe_m,
+        sfm_bias_speed_m_s=c.sfm.bias_speed_m_s,
+        sfm_wander_window_s=c.sfm.wander_window_s,
+        sfm_wander_max=c.sfm.wander_max,
+        sfm_folds_forget_s=c.sfm.folds_forget_s,
     )
 
 

@@ -73,6 +73,21 @@ def predict_bearing(beta: Vec3, chi: float, u_ij: Vec3, w_i: float, dt: float) -
     return (x / n, y / n, z / n)
 
 
+def excitation_gate(lam: float, bias_speed_m_s: float) -> float:
+    """Weight ``g`` in ``[0, 1]`` of the observer's correction for an odometry whose velocity is
+    off by up to ``bias_speed_m_s`` (not in the paper; 0: always 1, paper 000's observer).
+
+    The correction ``-alpha Omega xi`` attributes the bearing's unexplained motion to the
+    inverse depth. With a velocity bias ``delta`` the steady-state relative error of
+    ``chihat`` is about ``|P delta| / |P u|``: when the measured excitation ``|P u| =
+    sqrt(lambda)`` is no larger than the bias (a hovering team whose formation control flies
+    against the bias: ``u`` is then mostly the bias), it is all error and ``chihat`` walks
+    away. ``g = 0`` below ``|P u| = b``, rising linearly to 1 at ``2 b``."""
+    if bias_speed_m_s <= 0.0:
+        return 1.0
+    return min(max(math.sqrt(lam) / bias_speed_m_s - 1.0, 0.0), 1.0)
+
+
 def observer_rates(
     beta_hat: Vec3,
     chi_hat: float,
@@ -82,18 +97,24 @@ def observer_rates(
     alpha: float = ALPHA,
     h_other: float = H_OTHER,
     h_floor: float = H_FLOOR,
+    gate: float = 1.0,
 ) -> tuple[Vec3, float]:
     """Right-hand side of the observer (eq. 8) with the SVD-shaped gain ``H``.
 
-    Returns ``(betahat_dot, chihat_dot)``.
+    ``gate`` (:func:`excitation_gate`) scales the inverse-depth correction, ``alpha_eff = g
+    alpha``; ``c1`` keeps the pair critically damped for ``alpha_eff`` and, as ``g`` falls,
+    blends towards ``h_other`` so the bearing error along ``P u`` stays damped while ``chihat``
+    is not corrected (it would otherwise pile up and kick ``chihat`` when the motion resumes).
+    ``gate = 1`` is eq. 8 exactly. Returns ``(betahat_dot, chihat_dot)``.
     """
+    alpha_eff = gate * alpha
     bu = beta[0] * u_ij[0] + beta[1] * u_ij[1] + beta[2] * u_ij[2]
     o0, o1, o2 = u_ij[0] - beta[0] * bu, u_ij[1] - beta[1] * bu, u_ij[2] - beta[2] * bu  # Omega^T
     x0, x1, x2 = beta_hat[0] - beta[0], beta_hat[1] - beta[1], beta_hat[2] - beta[2]  # xi
     lam = o0 * o0 + o1 * o1 + o2 * o2
     o_xi = o0 * x0 + o1 * x1 + o2 * x2  # Omega xi
     if lam > 1e-12:
-        c1 = max(2.0 * math.sqrt(alpha * lam), h_floor)
+        c1 = max(2.0 * math.sqrt(alpha_eff * lam) + (1.0 - gate) * h_other, h_floor)
         k = (c1 - h_other) * o_xi / lam  # H xi = h xi + (c1 - h) v1 (v1 . xi)
         h0, h1, h2 = h_other * x0 + k * o0, h_other * x1 + k * o1, h_other * x2 + k * o2
     else:
@@ -103,7 +124,7 @@ def observer_rates(
         -w_i * beta[0] + o1 * chi_hat - h1,
         o2 * chi_hat - h2,
     )
-    d_chi_hat = -chi_hat * chi_hat * bu - alpha * o_xi
+    d_chi_hat = -chi_hat * chi_hat * bu - alpha_eff * o_xi
     return d_beta_hat, d_chi_hat
 
 
@@ -157,6 +178,24 @@ class SfmEdge:
     """Time the observer has been advanced to (the agent runs it up to its newest frame)."""
     chi_rate: float = 0.0
     """Model rate ``-chihat^2 u_ij^T beta`` (eq. 7) at ``t_s``, for :meth:`chi_at`."""
+    bias_speed_m_s: float = 0.0
+    """Odometry velocity error level of :func:`excitation_gate` (0: paper 000's observer)."""
+    folds_forget_s: float = 0.0
+    """Time constant over which :attr:`e_folds` is forgotten (0: never, paper 000): excitation
+    long ago does not vouch for an estimate an odometry bias has had time to move since."""
+    wander_window: WindowAverage | None = None
+    """Window of the correction-driven relative change ``-alpha_eff Omega xi / chihat``, its
+    increases (and :attr:`_wander_down` its decreases; None: not watched)."""
+    wander_max: float = 0.0
+    """Largest relative change of ``chihat`` by corrections within :attr:`wander_window`
+    compatible with convergence; above it :attr:`e_folds` is held below ``folds_cap``."""
+    folds_cap: float = math.inf
+    gate: float = 1.0
+    """Excitation gate of the last step."""
+    wander: float = 0.0
+    """Net correction-driven relative change of ``chihat`` over the last wander window (white
+    odometry noise averages out of it; a bias the observer keeps fighting does not)."""
+    _wander_down: WindowAverage | None = None
 
     def new_bearing(self, beta: Vec3, stamp_s: float, t_s: float, u_ij: Vec3, w_i: float) -> None:
         """Take a camera frame captured at ``stamp_s`` and predict it forward to ``t_s``."""
@@ -192,12 +231,25 @@ class SfmEdge:
         beta, beta_hat = self.beta_pred, self.beta_hat
         if beta is None or beta_hat is None or dt <= 0.0:
             return
+        self.excitation = excitation(beta, u_ij)
+        self.gate = gate = excitation_gate(self.excitation, self.bias_speed_m_s)
         d_bh, d_chi = observer_rates(
-            beta_hat, self.chi_hat, beta, u_ij, w_i, self.alpha, self.h_other, self.h_floor
+            beta_hat, self.chi_hat, beta, u_ij, w_i, self.alpha, self.h_other, self.h_floor, gate
         )
         x0, x1, x2 = beta_hat[0] - beta[0], beta_hat[1] - beta[1], beta_hat[2] - beta[2]
-        self.excitation = excitation(beta, u_ij)
-        self.e_folds += dt * math.sqrt(self.alpha * self.excitation)
+        self.e_folds += dt * math.sqrt(gate * self.alpha * self.excitation)
+        if self.folds_forget_s > 0.0:
+            self.e_folds *= math.exp(-dt / self.folds_forget_s)
+        if self.wander_window is not None and self.chi_hat > 0.0:
+            bu = beta[0] * u_ij[0] + beta[1] * u_ij[1] + beta[2] * u_ij[2]
+            corr = (d_chi + self.chi_hat * self.chi_hat * bu) / self.chi_hat
+            up, down = self.wander_window, self._wander_down
+            if down is None:
+                down = self._wander_down = WindowAverage(up.window_s)
+            net = up.add(t_s, max(corr, 0.0), dt) - down.add(t_s, max(-corr, 0.0), dt)
+            self.wander = abs(net) * up.window_s
+            if self.wander > self.wander_max:
+                self.e_folds = min(self.e_folds, self.folds_cap)
         self.e_index = self.window.add(t_s, x0 * x0 + x1 * x1 + x2 * x2, dt)
         self.beta_pred = beta = predict_bearing(beta, self.chi_hat, u_ij, w_i, dt)
         self.beta_hat = (

@@ -174,7 +174,8 @@ def _daemon_url(proc: subprocess.Popen[str]) -> str:
 def test_demo_mission_on_three_sitl_vehicles(sitl_binary, tmp_path):
     """The whole demo on real firmware: 3 ArduCopter SITL vehicles and 3 daemons take off,
     fly the mission in GUIDED on body velocity and yaw rate, and land. The estimates' accuracy
-    on SITL is phase 2 of issue 22 (``docs/sim.md``): here they must exist and be finite."""
+    on SITL is measured by ``benchmarks/bench_sitl_response.py --part team`` (``docs/sim.md``:
+    1-3 % median, not yet within 3 % everywhere): here they must exist and be finite."""
     from groundstation.demo import run_demo
 
     summary = run_demo(

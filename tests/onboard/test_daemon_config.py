@@ -71,6 +71,9 @@ def test_defaults_and_urls(tmp_path):
         ),
         ('formation = "formation.toml"\n[limits]\nmin_alt_m = nan\n', "limits.min_alt_m"),
         ('formation = "formation.toml"\n[mavlink]\nsystem_id_base = 0\n', "system_id_base"),
+        ('formation = "formation.toml"\n[sfm]\nbias_speed_m_s = -0.1\n', "sfm.bias_speed_m_s"),
+        ('formation = "formation.toml"\n[sfm]\nwander_window_s = 0.0\n', "sfm.wander_window_s"),
+        ('formation = "formation.toml"\n[sfm]\nwander_max = nan\n', "sfm.wander_max"),
         ('formation = "formation.toml"\n[mavlink]\nsystem_id_base = 254\n', "254..256"),
     ],
 )
@@ -188,3 +191,11 @@ def test_an_agent_listening_on_every_interface_is_reachable_off_loopback(tmp_pat
         peer.close()
         agent.close()
     assert got and bytes(got[0]) == b"hello"
+
+
+def test_sfm_section_reaches_the_core(tmp_path):
+    default = agent_config(load_fleet(write(tmp_path, 'formation = "formation.toml"\n')), 0)
+    assert default.sfm_bias_speed_m_s == 0.1 and default.sfm_wander_max == 0.02
+    off = 'formation = "formation.toml"\n[sfm]\nbias_speed_m_s = 0.0\nwander_max = 0.0\n'
+    cfg = agent_config(load_fleet(write(tmp_path, off)), 1)
+    assert cfg.sfm_bias_speed_m_s == 0.0 and cfg.sfm_wander_max == 0.0

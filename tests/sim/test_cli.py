@@ -32,6 +32,8 @@ def test_bad_options():
     assert r.exit_code == 2 and "speedup" in r.output
     r = runner.invoke(app, ["--signing-key", "/nonexistent/key"])
     assert r.exit_code == 2 and "signing key" in r.output
+    r = runner.invoke(app, ["--dynamics", "wobbly"])
+    assert r.exit_code == 2 and "dynamics" in r.output
 
 
 def test_negative_seed_is_a_usage_error():
