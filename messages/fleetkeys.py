@@ -41,6 +41,7 @@ CA_DAYS = 3650
 LEAF_DAYS = 365
 MAX_VEHICLES = 255
 _FLEET = re.compile(r"^[A-Za-z0-9_-]+$")
+_VEHICLE = re.compile(r"^(?:mavlink-)?vehicle-(\d+)\.(?:crt|key)$")
 
 
 class KeyStoreError(ValueError):
@@ -314,6 +315,22 @@ def load_signing_key(directory: str | Path, vehicle_id: int) -> bytes:
     return key
 
 
+def load_signing_keys(directory: str | Path) -> dict[int, bytes]:
+    """Every vehicle's signing key in ``directory``, by vehicle id (the ground station's set);
+    :class:`KeyStoreError` if there is none or one is malformed."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise KeyStoreError(f"{d}: not a directory")
+    ids = sorted(
+        int(m.group(1))
+        for p in d.iterdir()
+        if p.name.startswith("mavlink-") and (m := _VEHICLE.match(p.name))
+    )
+    if not ids:
+        raise KeyStoreError(f"{d}: no mavlink-vehicle-<id>.key (bearingflock keys init)")
+    return {i: load_signing_key(d, i) for i in ids}
+
+
 @dataclass(frozen=True)
 class Entry:
     """One certificate or signing key as ``keys show`` prints it (no secrets)."""
@@ -332,9 +349,6 @@ def _fingerprint(data: bytes) -> str:
     digest = hashes.Hash(hashes.SHA256())
     digest.update(data)
     return digest.finalize().hex()[:32]
-
-
-_VEHICLE = re.compile(r"^(?:mavlink-)?vehicle-(\d+)\.(?:crt|key)$")
 
 
 def describe(directory: str | Path, now: dt.datetime | None = None) -> list[Entry]:

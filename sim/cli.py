@@ -50,6 +50,14 @@ def sim(
     signing_key: Annotated[
         Path | None, typer.Option(help="MAVLink 2 signing key file (hex, raw or passphrase).")
     ] = None,
+    keys: Annotated[
+        Path | None,
+        typer.Option(
+            "--keys",
+            help="Fleet key directory (bearingflock keys init): vehicle i signs and checks with "
+            "mavlink-vehicle-<i>.key, as its autopilot would.",
+        ),
+    ] = None,
     zenoh: Annotated[
         str | None,
         typer.Option(
@@ -179,7 +187,7 @@ def sim(
             name
             for name, given in (
                 ("--lockstep", lockstep), ("--strict", strict), ("--signing-key", signing_key),
-                ("--render-camera", render_camera),
+                ("--keys", keys), ("--render-camera", render_camera),
             )
             if given
         ]  # fmt: skip
@@ -204,8 +212,19 @@ def sim(
         )  # fmt: skip
         code = run_sitl(p, yaw, ids, options, camera_cfg, zenoh, zenoh_connect or [], fleet, quiet)
         raise typer.Exit(code)
+    if keys is not None and signing_key is not None:
+        raise typer.BadParameter("--keys and --signing-key: give one")
     try:
         key = load_key(signing_key) if signing_key is not None else None
+        per_vehicle = None
+        if keys is not None:
+            from messages.fleetkeys import KeyStoreError, load_signing_key
+
+            try:
+                agent_ids = ids if ids is not None else list(range(len(p)))
+                per_vehicle = [load_signing_key(keys, int(a)) for a in agent_ids]
+            except KeyStoreError as exc:
+                raise ValueError(str(exc)) from None
         config = SimConfig(
             p,
             yaw,
@@ -222,6 +241,7 @@ def sim(
             ekf_warmup_s=ekf_warmup,
             boot_streams=boot_streams,
             signing_key=key,
+            signing_keys=per_vehicle,
             noise=SensorNoise(seed=seed),
         )
         camera = CameraConfig(

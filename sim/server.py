@@ -73,6 +73,10 @@ class SimConfig:
     boot_streams: bool = False
     """ArduPilot flavour: stream from boot instead of only on request."""
     signing_key: bytes | None = None
+    """One MAVLink signing key for every vehicle (``--signing-key``)."""
+    signing_keys: list[bytes] | None = None
+    """One key per vehicle, ``signing_keys[i]`` for vehicle ``i`` (``--keys DIR``, the fleet's
+    ``mavlink-vehicle-<i>.key``); takes precedence over ``signing_key``."""
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     noise: SensorNoise = field(default_factory=SensorNoise)
 
@@ -85,6 +89,8 @@ class SimConfig:
             raise ValueError(f"dt_s must be > 0, got {self.dt_s}")
         if self.bind_base is None:
             self.bind_base = self.client_base + 40
+        if self.signing_keys is not None and len(self.signing_keys) != self.n:
+            raise ValueError(f"signing_keys: {len(self.signing_keys)} keys for {self.n} vehicles")
 
     @property
     def n(self) -> int:
@@ -139,7 +145,8 @@ class SimServer:
         cfg = self.config
         counters = LinkCounters()
         ap = make_autopilot(cfg.flavour, i, self.world, options, counters)
-        codec = Codec(ap.dialect, ap.sys_id, signing_key=cfg.signing_key, counters=counters)
+        key = cfg.signing_keys[i] if cfg.signing_keys is not None else cfg.signing_key
+        codec = Codec(ap.dialect, ap.sys_id, signing_key=key, counters=counters)
         link: UdpLink | TcpLink
         if cfg.transport == "udp":
             assert cfg.bind_base is not None

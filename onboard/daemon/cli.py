@@ -94,6 +94,16 @@ def agent(
         typer.echo(f"error: --id {agent_id}: the fleet has agents 0..{fleet.n - 1}", err=True)
         raise typer.Exit(2)
     c = fleet.config
+    try:
+        signing_key = fleet.signing_key(agent_id)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if signing_key is not None and (backend or c.mavlink.backend) == "mavsdk":
+        from onboard.autopilot.mavsdk_link import MAVSDK_CANNOT_SIGN
+
+        typer.echo(f"error: {MAVSDK_CANNOT_SIGN}", err=True)
+        raise typer.Exit(2)
     bearings = bearings or c.bearings
     if bearings not in ("sim", "camera"):
         typer.echo(f"error: --bearings must be sim or camera, got {bearings!r}", err=True)
@@ -150,6 +160,7 @@ def agent(
             heartbeat_timeout_s=LinkConfig.heartbeat_timeout_s * slowdown,
             stream_rates_hz=_stream_rates(bearings, c.camera.attitude_rate_hz),
             system_id=system_id or fleet.system_id(agent_id),
+            signing_key=signing_key,
         ),
     )
     on_status = None
