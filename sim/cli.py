@@ -297,7 +297,7 @@ def sim(
     typer.echo(
         f"{server.world.n} {flavour} vehicles, speedup {speedup}, "
         f"{'lockstep' if lockstep else 'real time'}{', strict' if strict else ''}"
-        f"{', signed' if key else ''}; Ctrl-C to stop"
+        f"{', signed' if key or per_vehicle else ''}; Ctrl-C to stop"
     )
     sys.stdout.flush()
 

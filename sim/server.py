@@ -292,7 +292,7 @@ class SimServer:
         return (
             f"t={self.world.t_s:8.2f}s  armed {armed}/{len(self.autopilots)}  flying {flying}  "
             f"{mode_s}  rx {c['rx_packets']} tx {c['tx_packets']}  bad {bad}  "
-            f"rejected {c['unsigned_rejected'] + c['bad_signature']}  overruns {c['overruns']}"
+            f"rejected {c['unsigned_rejected'] + c['bad_signature'] + c['replayed']}  overruns {c['overruns']}"
         )
 
 

@@ -163,6 +163,9 @@ class LinkCounters:
     """With signing on: unsigned messages not on the allow-list (dropped)."""
     replayed: int = 0
     """With signing on: correctly signed but not newer than the stream's last (dropped)."""
+    signing_unavailable: int = 0
+    """With signing on: sends skipped while pymavlink still spoke MAVLink 1 (it switches to 2
+    on the autopilot's first v2 frame), which cannot sign."""
 
 
 SIGNING_COUNTERS = ("signed_ok", "bad_signature", "unsigned_rejected", "replayed")

@@ -34,6 +34,7 @@ while a takeoff climbs, so :meth:`start_velocity_control` waits for the climb to
 from __future__ import annotations
 
 import math
+import sys
 import threading
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -135,10 +136,8 @@ class PymavlinkLink(LinkBookkeeping):
             )
         except (OSError, ValueError, ImportError) as exc:
             raise LinkError(f"cannot open {url!r}: {exc}") from exc
-        key = self.config.signing_key
-        if key is not None:
-            sign_outgoing(self._conn.mav, key, self.config.signing_link_id)
-            self._verifier = SignatureVerifier(key)
+        if self.config.signing_key is not None:
+            self._verifier = SignatureVerifier(self.config.signing_key)
         self._start_thread(self._receive_loop, "autopilot-rx")
         with self._cond:
             heard = self._cond.wait_for(lambda: self._target is not None, timeout_s)
@@ -320,12 +319,27 @@ class PymavlinkLink(LinkBookkeeping):
             return False
         with self._send_lock:
             try:
-                if self._verifier is not None:
-                    keep_timestamp_current(conn.mav)
+                if self._verifier is not None and not self._signing(conn.mav):
+                    return False
                 fn(conn.mav)
             except Exception:
                 self._count("link_errors")
                 return False
+        return True
+
+    def _signing(self, mav: Any) -> bool:
+        """Make ``mav`` sign (again: pymavlink replaces its MAVLink object when it switches to
+        MAVLink 2 on the first v2 frame, and the new one would send unsigned); ``False`` for a
+        MAVLink 1 object, which cannot sign: nothing is sent then (counted)."""
+        key = self.config.signing_key
+        assert key is not None
+        module = sys.modules.get(type(mav).__module__)
+        if getattr(module, "WIRE_PROTOCOL_VERSION", "1.0") != "2.0":
+            self._count("signing_unavailable")
+            return False
+        if mav.signing.secret_key != key:
+            sign_outgoing(mav, key, self.config.signing_link_id)
+        keep_timestamp_current(mav)
         return True
 
     def _boot_ms(self) -> int:

@@ -29,9 +29,12 @@ def _wait_for(predicate, timeout_s: float, what: str, ev: Evaluator | None = Non
 
 
 @contextmanager
-def running_fleet(tmp_path: Path, extra_fleet_toml: str = "") -> Iterator[tuple]:
+def running_fleet(
+    tmp_path: Path, extra_fleet_toml: str = "", sim_args: list[str] | None = None
+) -> Iterator[tuple]:
     """The simulator and N daemons as processes (the demo's files, ``extra_fleet_toml``
-    appended to the fleet file); yields ``(evaluator, processes, ports, agent_args, fleet)``."""
+    appended to the fleet file, ``sim_args`` added to the simulator's command line); yields
+    ``(evaluator, processes, ports, agent_args, fleet)``."""
     base = free_port_base(N + 2, span=60)
     ports = DemoPorts(zenoh=base, mavlink=base + 10 + N, gcs=base + 9)
     plan = plan_formation(N, seed=1)
@@ -48,6 +51,7 @@ def running_fleet(tmp_path: Path, extra_fleet_toml: str = "") -> Iterator[tuple]
             "--zenoh", loopback_endpoint(ports.zenoh), "--fleet", name,
             "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
             "--bind-base", str(ports.mavlink + N + 5), "--camera-fov", "360", "--quiet",
+            *(sim_args or []),
         ],
     )  # fmt: skip
     agent_args = {

@@ -1,0 +1,101 @@
+"""A secured team end to end (issue 24): ``bearingflock keys init``, ``[security] dir`` in the
+fleet file, the simulator with ``--keys``: the three daemons (separate processes, real UDP
+MAVLink, real Zenoh) arm, take off and fly the mission over signed links. Meanwhile an
+attacker on the link sends unsigned and wrongly signed ARM/DISARM, SET_MODE and setpoints to
+every vehicle, including packets with the daemons' own (link id, system, component) and a
+far-future timestamp (pymavlink's hole 1): nothing changes, the daemons keep flying, and the
+simulator counts every packet."""
+
+from __future__ import annotations
+
+import re
+import socket
+import time
+
+import pytest
+from pymavlink.dialects.v20 import common
+
+from messages import mavlink as mv
+from messages.fleetkeys import init_fleet
+from messages.mavsign import TIMESTAMP_UNITS_PER_S, sign_outgoing, signing_timestamp
+
+pytestmark = pytest.mark.e2e
+N = 3
+ROUNDS = 10
+
+
+def _attack_frames(sysid: int) -> list[bytes]:
+    """What the attacker sends to vehicle ``sysid``: 4 commands unsigned and 4 signed with a
+    wrong key, the latter as the daemon (245/191, link id 1) with a far-future timestamp."""
+    msgs = [
+        common.MAVLink_command_long_message(sysid, 1, 400, 0, 0, 21196, 0, 0, 0, 0, 0),  # disarm
+        common.MAVLink_set_mode_message(sysid, 1, mv.px4_custom_mode(4, 6)),  # AUTO.LAND
+        common.MAVLink_command_long_message(sysid, 1, 21, 0, 0, 0, 0, 0, 0, 0, 0),  # NAV_LAND
+        common.MAVLink_set_position_target_local_ned_message(
+            0, sysid, 1, 8, 1479, 0, 0, 0, 2.0, 0, -1.0, 0, 0, 0, 0, 0.8
+        ),
+    ]
+    out = []
+    plain = common.MAVLink(None, srcSystem=245, srcComponent=191)
+    forged = common.MAVLink(None, srcSystem=245, srcComponent=191)
+    sign_outgoing(forged, bytes(range(32)), 1)
+    forged.signing.timestamp = signing_timestamp() + 10 * 365 * 86400 * TIMESTAMP_UNITS_PER_S
+    for mav in (plain, forged):
+        for m in msgs:
+            out.append(bytes(m.pack(mav)))
+            mav.seq = (mav.seq + 1) % 256
+    return out
+
+
+def _flying(ev) -> bool:
+    st = ev.snapshot()
+    return len(st) == N and all(
+        s.phase == "flying" and s.autopilot_mode == "OFFBOARD" and s.armed and s.in_air
+        for s in st.values()
+    )
+
+
+def test_secured_team_flies_and_ignores_unsigned_and_forged_mavlink(tmp_path, fleet_with, wait_for):
+    init_fleet(tmp_path / "keys", "alpha", N)
+    security = '\n[security]\ndir = "keys"\n'
+    with fleet_with(tmp_path, security, ["--keys", str(tmp_path / "keys")]) as fleet:
+        ev, _procs, ports, _agent_args, _name = fleet
+        took = wait_for(lambda: _flying(ev), 90.0, "every daemon flying over signed links", ev)
+        ok = {k: s.dropped.get("mavlink_signed_ok", 0) for k, s in ev.snapshot().items()}
+        assert all(v > 0 for v in ok.values()), ok
+        bind = ports.mavlink + N + 5  # the simulator's vehicle sockets (conftest)
+        sent = 0
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(ROUNDS):
+                for i in range(N):
+                    for frame in _attack_frames(i + 1):
+                        s.sendto(frame, ("127.0.0.1", bind + i))
+                        sent += 1
+                time.sleep(0.1)
+            t_end = time.monotonic() + 5.0
+            while time.monotonic() < t_end:  # the whole time: still flying the mission
+                assert _flying(ev), {
+                    k: (v.phase, v.autopilot_mode) for k, v in ev.snapshot().items()
+                }
+                try:  # and the attacker is no peer: nothing comes back
+                    s.settimeout(0.1)
+                    data = s.recv(65535)
+                    raise AssertionError(f"the attacker got {len(data)} bytes")
+                except TimeoutError:
+                    pass
+        statuses = ev.snapshot()
+        link_bad = {k: {r: n for r, n in v.dropped.items() if r.startswith("mavlink_")}
+                    for k, v in statuses.items()}  # fmt: skip
+    log = (tmp_path / "sim.log").read_text()
+    counts = {k: int(v) for k, v in re.findall(r"(\w+)=(\d+)", log.splitlines()[-1])}
+    print(
+        f"\nflying after {took:.1f} s; attack packets sent {sent}; simulator counters "
+        f"unsigned_rejected={counts.get('unsigned_rejected', 0)} "
+        f"bad_signature={counts.get('bad_signature', 0)} signed_ok={counts.get('signed_ok', 0)}; "
+        f"daemon link counters {link_bad}"
+    )
+    assert counts.get("unsigned_rejected", 0) == sent // 2
+    assert counts.get("bad_signature", 0) == sent // 2
+    assert counts.get("replayed", 0) == 0
+    # every message the vehicles acted on was correctly signed (the daemons' own)
+    assert counts["signed_ok"] == counts["rx_packets"] > 0
