@@ -465,8 +465,13 @@ def run_demo(
     sitl: Path | None = None,
     sitl_sensors: str = "flow",
     sitl_params: Sequence[str] = (),
+    secure: bool = False,
 ) -> dict[str, Any]:
     """Run the whole mission (module docstring) and return its summary.
+
+    ``secure``: the fleet's keys are made in ``out/keys`` (``bearingflock keys init``), the
+    fleet file points at them (``[security] dir``) and the simulator plays autopilots that
+    require signed MAVLink (``--keys``); built-in autopilots only.
 
     ``autopilot = "ardupilot-sitl"``: real ArduCopter SITL processes instead of the simulated
     autopilots (``bearingflock sim --autopilot ardupilot-sitl``; binary ``sitl`` or
@@ -500,10 +505,20 @@ def run_demo(
                      *(a for p in sitl_params for a in ("--sitl-param", p))]  # fmt: skip
     elif autopilot != "builtin":
         raise ValueError(f"unknown autopilot {autopilot!r}: builtin or ardupilot-sitl")
+    if secure and autopilot != "builtin":
+        raise ValueError("--secure: the simulated autopilots only (SITL keys are not provisioned)")
     # the rigidity layer's sensing model is one camera cone; rendered rigs (a forward camera or
     # a ring of them) are not modelled yet, so camera bearings fly without the maintenance
     rigidity = rigidity and bearings == "sim"
     fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity, instance)
+    secure_args: list[str] = []
+    if secure:
+        from messages.fleetkeys import init_fleet
+
+        init_fleet(out / "keys", fleet, vehicles, force=True)  # a fresh identity per run
+        with fleet_path.open("a") as f:
+            f.write('\n[security]\ndir = "keys"\n')
+        secure_args = ["--keys", str(out / "keys")]
     if bearings == "camera":
         stale_s = max(0.5, CAMERA_STALE_FRAMES / render_rate_hz)
         with fleet_path.open("a") as f:
@@ -523,7 +538,7 @@ def run_demo(
         procs.start(
             "sim",
             [*simulator_args(vehicles, flavour, out, ports, fleet, seed, speedup), *camera_args,
-             *sitl_args],
+             *sitl_args, *secure_args],
         )  # fmt: skip
         for i in range(vehicles):
             procs.start(

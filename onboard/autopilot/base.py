@@ -168,13 +168,13 @@ class LinkCounters:
     on the autopilot's first v2 frame), which cannot sign."""
 
 
-SIGNING_COUNTERS = ("signed_ok", "bad_signature", "unsigned_rejected", "replayed")
+SIGNING_REJECTIONS = ("bad_signature", "unsigned_rejected", "replayed", "signing_unavailable")
 
 
-def signing_counts(counters: LinkCounters) -> dict[str, int]:
-    """The MAVLink signing counters that are not zero (none without signing): what the daemon
-    adds to its status as ``mavlink_<name>``."""
-    return {k: v for k in SIGNING_COUNTERS if (v := getattr(counters, k))}
+def signing_rejections(counters: LinkCounters) -> dict[str, int]:
+    """The MAVLink signing rejections that are not zero (none without signing or attack): what
+    the daemon adds to its status's ``dropped`` as ``mavlink_<name>``."""
+    return {k: v for k in SIGNING_REJECTIONS if (v := getattr(counters, k))}
 
 
 @dataclass(frozen=True)

@@ -204,6 +204,14 @@ def agent(
                 "%d cut at the border, %d bearings",
                 st.frames, st.skipped, st.late, st.incomplete, st.cut, st.detections,
             )  # fmt: skip
+        if signing_key is not None:
+            lc = link.telemetry().counters
+            logging.getLogger(__name__).info(
+                "mavlink signing: %d signed_ok, %d bad_signature, %d unsigned_rejected, "
+                "%d replayed, %d signing_unavailable",
+                lc.signed_ok, lc.bad_signature, lc.unsigned_rejected, lc.replayed,
+                lc.signing_unavailable,
+            )  # fmt: skip
         _close_all(link.close, peers.close)
 
 
