@@ -470,8 +470,9 @@ def run_demo(
     """Run the whole mission (module docstring) and return its summary.
 
     ``secure``: the fleet's keys are made in ``out/keys`` (``bearingflock keys init``), the
-    fleet file points at them (``[security] dir``) and the simulator plays autopilots that
-    require signed MAVLink (``--keys``); built-in autopilots only.
+    fleet file points at them (``[security] dir``), the simulator plays autopilots that
+    require signed MAVLink (``--keys``), and every Zenoh session runs over mutual TLS with the
+    fleet CA; built-in autopilots only.
 
     ``autopilot = "ardupilot-sitl"``: real ArduCopter SITL processes instead of the simulated
     autopilots (``bearingflock sim --autopilot ardupilot-sitl``; binary ``sitl`` or
@@ -546,13 +547,15 @@ def run_demo(
                 ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path),
                  "--bearings", bearings, *agent_camera_args],
             )  # fmt: skip
-        evaluator = Evaluator(
-            fleet,
-            plan,
-            ZenohSettings(
-                connect=[loopback_endpoint(ports.zenoh + k) for k in range(vehicles + 1)]
-            ),
+        zsettings = ZenohSettings(
+            connect=[loopback_endpoint(ports.zenoh + k) for k in range(vehicles + 1)]
         )
+        if secure:  # the evaluator joins as the ground station, over mutual TLS
+            from messages.fleetkeys import GCS_NAME, identity_files
+            from messages.transport import with_mutual_tls
+
+            zsettings = with_mutual_tls(zsettings, *identity_files(out / "keys", GCS_NAME))
+        evaluator = Evaluator(fleet, plan, zsettings)
         ev = evaluator
 
         def sim_now() -> float | None:

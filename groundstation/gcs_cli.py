@@ -68,7 +68,8 @@ KeysOpt = Annotated[
     typer.Option(
         "--keys",
         help="Fleet key directory (security.dir): sign MAVLink to vehicle i with "
-        "mavlink-vehicle-<i>.key and accept only correctly signed messages.",
+        "mavlink-vehicle-<i>.key and accept only correctly signed messages; Zenoh over mutual "
+        "TLS as the ground station (gcs.crt; tcp/ endpoints become tls/).",
     ),
 ]
 SysidOpt = Annotated[
@@ -129,14 +130,27 @@ def _open_mavlink(
     return listener.start()
 
 
-def _open_zenoh(stack: ExitStack, connect: list[str] | None, listen: list[str] | None) -> Any:
-    from messages.transport import ZenohSettings, open_session
+def _open_zenoh(
+    stack: ExitStack,
+    connect: list[str] | None,
+    listen: list[str] | None,
+    keys: Path | None = None,
+) -> Any:
+    from messages.transport import ZenohSettings, open_session, with_mutual_tls
 
     values = connect if connect is not None else [DEFAULT_ZENOH]
     if _off(values):
         return None
+    settings = ZenohSettings(connect=values, listen=listen or [])
+    if keys is not None:  # mutual TLS with the fleet CA, as the ground station
+        from messages.fleetkeys import GCS_NAME, identity_files
+
+        try:
+            settings = with_mutual_tls(settings, *identity_files(keys, GCS_NAME))
+        except ValueError as exc:
+            raise _fail(f"--keys: {exc}") from None
     try:
-        session = open_session(ZenohSettings(connect=values, listen=listen or []))
+        session = open_session(settings)
     except Exception as exc:  # zenoh raises its own error type for a bad endpoint
         raise _fail(f"cannot open a Zenoh session: {exc}") from None
     stack.callback(session.close)
@@ -199,7 +213,7 @@ def monitor(
     if json and not once:
         raise _fail("--json needs --once")
     with ExitStack() as stack:
-        session = _open_zenoh(stack, zenoh, zenoh_listen)  # first: opening it takes a while
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys)  # first: opening takes a while
         zen = _zenoh_listener(stack, session, fleet)
         mav = _open_mavlink(stack, mavlink, keys, sysid_offset)
         mon = Monitor(MonitorConfig(fleet=fleet, sysid_offset=sysid_offset), mav, zen)
@@ -248,7 +262,7 @@ def _fleet_command(
     needs_mav = action in ("arm", "takeoff", "land", "stop")
     needs_zen = action in ("start", "hold", "stop")
     with ExitStack() as stack:
-        session = _open_zenoh(stack, zenoh, zenoh_listen) if needs_zen else None
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys) if needs_zen else None
         zen = _zenoh_listener(stack, session, fleet)
         mav = _open_mavlink(stack, mavlink, keys, sysid_offset) if needs_mav else None
         if needs_mav and mav is None and action != "stop":
@@ -400,7 +414,7 @@ def record(
         except OSError as exc:
             raise _fail(f"cannot write {out}: {exc.strerror}") from None
         stack.callback(rec.close)
-        session = _open_zenoh(stack, zenoh, zenoh_listen)
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys)
         zen = _zenoh_listener(stack, session, fleet)
         mav = _open_mavlink(stack, mavlink, keys, sysid_offset)
         if mav is not None:

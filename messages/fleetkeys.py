@@ -7,6 +7,7 @@ Layout of a key directory::
                                       ``keys init`` and ``keys issue`` need it)
     vehicle-<id>.crt  vehicle-<id>.key   vehicle <id>'s identity, CN=<fleet>-vehicle-<id>
     gcs.crt  gcs.key                  the ground station, CN=<fleet>-gcs
+    sim.crt  sim.key                  the simulator (rehearsals), CN=<fleet>-sim
     mavlink-vehicle-<id>.key          32-byte MAVLink signing key of vehicle <id>'s autopilot
                                       link (64 hex characters)
 
@@ -36,6 +37,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 CA_NAME = "ca"
 GCS_NAME = "gcs"
+SIM_NAME = "sim"
 SIGNING_KEY_BYTES = 32
 CA_DAYS = 3650
 LEAF_DAYS = 365
@@ -192,7 +194,7 @@ def _issue_signing_key(directory: Path, vehicle_id: int, force: bool) -> Path:
 
 
 def _targets(n_vehicles: int) -> list[str]:
-    return [CA_NAME, GCS_NAME, *(vehicle_name(i) for i in range(n_vehicles))]
+    return [CA_NAME, GCS_NAME, SIM_NAME, *(vehicle_name(i) for i in range(n_vehicles))]
 
 
 def init_fleet(
@@ -230,6 +232,7 @@ def init_fleet(
     _write_private(written[0], _key_pem(ca_key), force)
     _write_private(written[1], ca_cert.public_bytes(serialization.Encoding.PEM), force)
     written += _issue_leaf(d, fleet, GCS_NAME, ca_key, ca_cert, days, force, now)
+    written += _issue_leaf(d, fleet, SIM_NAME, ca_key, ca_cert, days, force, now)
     for i in range(n_vehicles):
         written += _issue_leaf(d, fleet, vehicle_name(i), ca_key, ca_cert, days, force, now)
         written.append(_issue_signing_key(d, i, force))
@@ -283,6 +286,13 @@ def issue_vehicle(
     written = _issue_leaf(d, fleet_of(ca_cert), name, ca_key, ca_cert, days, force, now)
     written.append(_issue_signing_key(d, vehicle_id, force))
     return written
+
+
+def identity_files(directory: str | Path, name: str) -> tuple[Path, Path, Path]:
+    """``(ca.crt, <name>.crt, <name>.key)`` of an identity (``vehicle-<id>``, ``gcs``, ``sim``)
+    for Zenoh TLS."""
+    d = Path(directory)
+    return d / "ca.crt", d / f"{name}.crt", d / f"{name}.key"
 
 
 def load_certificate(path: Path) -> x509.Certificate:

@@ -55,7 +55,8 @@ def sim(
         typer.Option(
             "--keys",
             help="Fleet key directory (bearingflock keys init): vehicle i signs and checks with "
-            "mavlink-vehicle-<i>.key, as its autopilot would.",
+            "mavlink-vehicle-<i>.key, as its autopilot would, and Zenoh runs over mutual TLS "
+            "(sim.crt, tcp/ endpoints become tls/).",
         ),
     ] = None,
     zenoh: Annotated[
@@ -258,11 +259,23 @@ def sim(
     images: Any = None
     subscribers: list[Any] = []  # keep Zenoh subscribers alive
     if zenoh is not None or zenoh_connect:
-        from messages.transport import ZenohSettings, open_session, publisher_put
-
-        session = open_session(
-            ZenohSettings(listen=[zenoh] if zenoh else [], connect=zenoh_connect or [])
+        from messages.transport import (
+            ZenohSettings,
+            open_session,
+            publisher_put,
+            with_mutual_tls,
         )
+
+        zsettings = ZenohSettings(listen=[zenoh] if zenoh else [], connect=zenoh_connect or [])
+        if keys is not None:  # the fleet's identity: Zenoh over mutual TLS as <fleet>-sim
+            from messages.fleetkeys import SIM_NAME, identity_files
+
+            try:
+                zsettings = with_mutual_tls(zsettings, *identity_files(keys, SIM_NAME))
+            except ValueError as exc:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(2) from None
+        session = open_session(zsettings)
         put = publisher_put(session)
         server.hooks.append(CameraPublisher(camera, fleet, put, ids=ids))
         server.hooks.append(ClockPublisher(fleet, put, server.clock, config.dt_s))

@@ -6,6 +6,7 @@ import logging
 import math
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -109,7 +110,11 @@ def agent(
         typer.echo(f"error: --bearings must be sim or camera, got {bearings!r}", err=True)
         raise typer.Exit(2)
     pipelines = _camera_pipelines(fleet, camera, markers) if bearings == "camera" else []
-    settings = fleet.zenoh_settings(agent_id)
+    try:
+        settings = fleet.zenoh_settings(agent_id)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
     neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}
@@ -122,6 +127,8 @@ def agent(
         c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss,
         listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
     )  # fmt: skip
+    if signing_key is not None:  # [security]: Zenoh over mutual TLS
+        _warn_without_peers(peers.session, TLS_PEER_WAIT_S)
     if c.clock == "sim":
         follower = SimClockFollower()
 
@@ -213,6 +220,28 @@ def agent(
                 lc.signing_unavailable,
             )  # fmt: skip
         _close_all(link.close, peers.close)
+
+
+TLS_PEER_WAIT_S = 10.0
+"""With Zenoh TLS: no peer after this long is reported (a failed handshake does not fail
+``zenoh.open``, the session just stays alone)."""
+
+
+def _warn_without_peers(session: Any, wait_s: float) -> None:
+    """Log an error once if ``session`` has no Zenoh peer ``wait_s`` after it opened."""
+    from messages.transport import peer_count
+
+    def check() -> None:
+        if peer_count(session) == 0:
+            logging.getLogger(__name__).error(
+                "zenoh: no peer over TLS after %.0f s: the other processes' certificates are "
+                "not from this fleet's CA, or they are not up (bearingflock keys show DIR)",
+                wait_s,
+            )
+
+    timer = threading.Timer(wait_s, check)
+    timer.daemon = True
+    timer.start()
 
 
 def _close_all(*closers: Any) -> None:

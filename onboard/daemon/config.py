@@ -71,7 +71,9 @@
     [security]                        # docs/flying.md "Securing the links"
     dir = ""                          # key directory of `bearingflock keys init` (relative to
                                       # this file): MAVLink 2 signing with mavlink-vehicle-<id>.key
-                                      # on every autopilot link; "" = no signing
+                                      # on every autopilot link, and Zenoh over mutual TLS with
+                                      # the fleet CA (vehicle-<id>.crt/.key, every tcp/ endpoint
+                                      # becomes tls/); "" = neither
 
     [camera]                          # bearings = "camera" (docs/vision.md)
     files = ["camera.toml"]           # camera rig: one camera file per camera_id, relative to
@@ -94,7 +96,7 @@ from typing import Literal
 import msgspec
 
 from messages.formation import Formation, FormationError, load_formation
-from messages.transport import ZenohSettings, loopback_endpoint
+from messages.transport import ZenohSettings, loopback_endpoint, with_mutual_tls
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
@@ -226,13 +228,22 @@ class Fleet(msgspec.Struct, frozen=True):
             e.split("/", 1)[-1] in (f"0.0.0.0:{port}", f"[::]:{port}") for e in extra_listen
         )
         loopback = [] if covered or z.mode != "peer" else [own]
-        return ZenohSettings(
+        settings = ZenohSettings(
             mode=z.mode,
             listen=[*loopback, *extra_listen],
             connect=[loopback_endpoint(p) for p in [self.sim_zenoh_port(), *others]] + z.connect,
             multicast_scouting=z.multicast_scouting,
             config_file=str(self.resolve(z.config_file)) if z.config_file else None,
         )
+        keys = self.security_dir()
+        if keys is None:
+            return settings
+        from messages.fleetkeys import identity_files, vehicle_name
+
+        try:  # mutual TLS with the fleet CA, as vehicle agent_id
+            return with_mutual_tls(settings, *identity_files(keys, vehicle_name(agent_id)))
+        except ValueError as exc:
+            raise ConfigError(f"{self.path}: security.dir: {exc}") from None
 
     def security_dir(self) -> Path | None:
         """The key directory (``[security] dir``), or ``None`` when the links are not secured."""

@@ -11,23 +11,28 @@ from groundstation.demo_cli import default_speedup
 
 pytestmark = pytest.mark.e2e
 
-VEHICLES = 4
+VEHICLES = 6
 SPEEDUP = default_speedup(VEHICLES, cores=2)
 MISSION_S = 34.0
+LOSS = 0.1
 SCALE_TOLERANCE = 0.02
-"""The plain demo's bound (tests/e2e/test_demo.py)."""
 BEARING_TOLERANCE_DEG = 3.0
+"""The plain demo's mission and bounds (tests/e2e/test_demo.py). With 4 vehicles the 34 s
+mission is too short: one secure run ended 2.02% off in scale, 4.1 degrees in formation,
+the scale found only 26 s in."""
 
 
 def test_secure_demo_finds_metric_scale(tmp_path):
-    summary = run_demo(VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, secure=True)
+    summary = run_demo(
+        VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, loss=LOSS, secure=True
+    )
     dropped = summary["dropped_by_reason"]
     report = {
         k: summary[k] for k in ("time_to_scale_s", "final_scale_error", "final_bearing_error_deg")
     }
     print(f"\nsecure demo: {report}; signing counters "
           f"{ {k: v for k, v in dropped.items() if k.startswith('mavlink_')} }")  # fmt: skip
-    assert (tmp_path / "keys" / "mavlink-vehicle-3.key").stat().st_mode & 0o777 == 0o600
+    assert (tmp_path / "keys" / "mavlink-vehicle-5.key").stat().st_mode & 0o777 == 0o600
     assert 'dir = "keys"' in (tmp_path / "fleet.toml").read_text()
     assert summary["final_scale_error"] is not None, report
     assert summary["final_scale_error"] < SCALE_TOLERANCE, report

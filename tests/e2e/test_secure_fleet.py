@@ -1,6 +1,9 @@
 """A secured team end to end (issue 24): ``bearingflock keys init``, ``[security] dir`` in the
 fleet file, the simulator with ``--keys``: the three daemons (separate processes, real UDP
-MAVLink, real Zenoh) arm, take off and fly the mission over signed links. Meanwhile an
+MAVLink, real Zenoh over mutual TLS) arm, take off and fly the mission over signed links.
+Two rogue Zenoh peers connect to every endpoint of the team, one over plain TCP and one over
+TLS with a certificate from another CA, subscribe to everything and publish ``stop`` to every
+vehicle: they receive nothing, have no peer, and the team flies on. Meanwhile an
 attacker on the link sends unsigned and wrongly signed ARM/DISARM, SET_MODE and setpoints to
 every vehicle, including packets with the daemons' own (link id, system, component) and a
 far-future timestamp (pymavlink's hole 1): nothing changes, the daemons keep flying, and the
@@ -16,8 +19,18 @@ import pytest
 from pymavlink.dialects.v20 import common
 
 from messages import mavlink as mv
-from messages.fleetkeys import init_fleet
+from messages.codec import encode
+from messages.command import COMMAND_TOPIC, FleetCommand
+from messages.fleetkeys import GCS_NAME, identity_files, init_fleet
+from messages.keys import fleet_keys, key
 from messages.mavsign import TIMESTAMP_UNITS_PER_S, sign_outgoing, signing_timestamp
+from messages.transport import (
+    ZenohSettings,
+    loopback_endpoint,
+    open_session,
+    peer_count,
+    with_mutual_tls,
+)
 
 pytestmark = pytest.mark.e2e
 N = 3
@@ -47,6 +60,34 @@ def _attack_frames(sysid: int) -> list[bytes]:
     return out
 
 
+def _rogue_sessions(tmp_path, fleet: str, zenoh_base: int) -> tuple[list, list[int]]:
+    """A plain-TCP and an other-CA TLS Zenoh peer connected to the simulator's and every
+    daemon's endpoint; each subscribes to the whole fleet and publishes ``stop`` to everyone
+    (the sessions stay open while the test runs)."""
+    init_fleet(tmp_path / "rogue", "alpha", N)
+    endpoints = [loopback_endpoint(zenoh_base + k) for k in range(N + 1)]
+    plain = ZenohSettings(connect=endpoints)
+    forged = with_mutual_tls(plain, *identity_files(tmp_path / "rogue", GCS_NAME))
+    got = [0, 0]
+    sessions = []
+    for idx, settings in enumerate((plain, forged)):
+        try:
+            session = open_session(settings)
+        except Exception:  # refusing the session outright is fine too
+            continue
+
+        def count(_sample, idx=idx) -> None:
+            got[idx] += 1
+
+        for i in range(N):  # before subscribing: its own puts would come back to it
+            session.put(key(fleet, i, COMMAND_TOPIC),
+                        encode(FleetCommand(sender=0, seq=1, stamp_s=time.time(), target=i,
+                                            action="stop", request_id=7)))  # fmt: skip
+        session.declare_subscriber(fleet_keys(fleet), count)
+        sessions.append(session)
+    return sessions, got
+
+
 def _flying(ev) -> bool:
     st = ev.snapshot()
     return len(st) == N and all(
@@ -57,10 +98,10 @@ def _flying(ev) -> bool:
 
 def test_secured_team_flies_and_ignores_unsigned_and_forged_mavlink(tmp_path, fleet_with, wait_for):
     init_fleet(tmp_path / "keys", "alpha", N)
-    security = '\n[security]\ndir = "keys"\n'
-    with fleet_with(tmp_path, security, ["--keys", str(tmp_path / "keys")]) as fleet:
-        ev, _procs, ports, _agent_args, _name = fleet
+    with fleet_with(tmp_path, keys=tmp_path / "keys") as fleet:
+        ev, _procs, ports, _agent_args, name = fleet
         took = wait_for(lambda: _flying(ev), 90.0, "every daemon flying over signed links", ev)
+        rogues, rogue_got = _rogue_sessions(tmp_path, name, ports.zenoh)
         bind = ports.mavlink + N + 5  # the simulator's vehicle sockets (conftest)
         sent = 0
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -81,6 +122,10 @@ def test_secured_team_flies_and_ignores_unsigned_and_forged_mavlink(tmp_path, fl
                     raise AssertionError(f"the attacker got {len(data)} bytes")
                 except TimeoutError:
                     pass
+        rogue_peers = [peer_count(r) for r in rogues]
+        for r in rogues:
+            r.close()
+        assert ev.session is not None and peer_count(ev.session) >= N  # the evaluator's TLS works
         statuses = ev.snapshot()
         link_bad = {k: {r: n for r, n in v.dropped.items() if r.startswith("mavlink_")}
                     for k, v in statuses.items()}  # fmt: skip
@@ -90,8 +135,10 @@ def test_secured_team_flies_and_ignores_unsigned_and_forged_mavlink(tmp_path, fl
         f"\nflying after {took:.1f} s; attack packets sent {sent}; simulator counters "
         f"unsigned_rejected={counts.get('unsigned_rejected', 0)} "
         f"bad_signature={counts.get('bad_signature', 0)} signed_ok={counts.get('signed_ok', 0)}; "
-        f"daemon link counters {link_bad}"
+        f"daemon link counters {link_bad}; rogue Zenoh peers (tcp, other CA): "
+        f"{rogue_peers} peers, {rogue_got} samples received"
     )
+    assert rogue_peers == [0, 0] and rogue_got == [0, 0]
     assert counts.get("unsigned_rejected", 0) == sent // 2
     assert counts.get("bad_signature", 0) == sent // 2
     assert counts.get("replayed", 0) == 0

@@ -42,7 +42,7 @@ def test_init_creates_ca_vehicles_gcs_and_signing_keys_mode_0600(tmp_path):
     written = init_fleet(d, "alpha", 3)
     names = sorted(p.name for p in written)
     assert names == sorted(
-        ["ca.crt", "ca.key", "gcs.crt", "gcs.key"]
+        ["ca.crt", "ca.key", "gcs.crt", "gcs.key", "sim.crt", "sim.key"]
         + [f"vehicle-{i}.{e}" for i in range(3) for e in ("crt", "key")]
         + [f"mavlink-vehicle-{i}.key" for i in range(3)]
     )
@@ -91,7 +91,7 @@ def test_show_prints_no_secret_and_flags_problems(tmp_path):
     r = _cli("show", str(tmp_path), "--json")
     assert r.returncode == 0, r.stderr
     rows = [json.loads(line) for line in r.stdout.splitlines()]
-    assert len(rows) == 10
+    assert len(rows) == 12
     secrets = [load_signing_key(tmp_path, i).hex() for i in range(2)]
     for p in tmp_path.glob("*.key"):
         body = p.read_text()
