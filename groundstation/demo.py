@@ -553,8 +553,13 @@ def run_demo(
         if secure:  # the evaluator joins as the ground station, over mutual TLS
             from messages.fleetkeys import GCS_NAME, identity_files
             from messages.transport import with_mutual_tls
+            from messages.zenoh_acl import fleet_access_control
 
-            zsettings = with_mutual_tls(zsettings, *identity_files(out / "keys", GCS_NAME))
+            zsettings = with_mutual_tls(
+                zsettings,
+                *identity_files(out / "keys", GCS_NAME),
+                access_control=fleet_access_control(fleet, vehicles, fleet),
+            )
         evaluator = Evaluator(fleet, plan, zsettings)
         ev = evaluator
 

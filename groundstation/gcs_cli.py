@@ -135,6 +135,7 @@ def _open_zenoh(
     connect: list[str] | None,
     listen: list[str] | None,
     keys: Path | None = None,
+    fleet: str = "alpha",
 ) -> Any:
     from messages.transport import ZenohSettings, open_session, with_mutual_tls
 
@@ -143,11 +144,19 @@ def _open_zenoh(
         return None
     settings = ZenohSettings(connect=values, listen=listen or [])
     if keys is not None:  # mutual TLS with the fleet CA, as the ground station
-        from messages.fleetkeys import GCS_NAME, identity_files
+        from messages.fleetkeys import (
+            GCS_NAME,
+            KeyStoreError,
+            identity_files,
+            identity_fleet,
+            vehicle_count,
+        )
+        from messages.zenoh_acl import fleet_access_control
 
         try:
-            settings = with_mutual_tls(settings, *identity_files(keys, GCS_NAME))
-        except ValueError as exc:
+            acl = fleet_access_control(fleet, vehicle_count(keys), identity_fleet(keys))
+            settings = with_mutual_tls(settings, *identity_files(keys, GCS_NAME), acl)
+        except (ValueError, KeyStoreError) as exc:
             raise _fail(f"--keys: {exc}") from None
     try:
         session = open_session(settings)
@@ -213,7 +222,9 @@ def monitor(
     if json and not once:
         raise _fail("--json needs --once")
     with ExitStack() as stack:
-        session = _open_zenoh(stack, zenoh, zenoh_listen, keys)  # first: opening takes a while
+        session = _open_zenoh(
+            stack, zenoh, zenoh_listen, keys, fleet
+        )  # first: opening takes a while
         zen = _zenoh_listener(stack, session, fleet)
         mav = _open_mavlink(stack, mavlink, keys, sysid_offset)
         mon = Monitor(MonitorConfig(fleet=fleet, sysid_offset=sysid_offset), mav, zen)
@@ -262,7 +273,7 @@ def _fleet_command(
     needs_mav = action in ("arm", "takeoff", "land", "stop")
     needs_zen = action in ("start", "hold", "stop")
     with ExitStack() as stack:
-        session = _open_zenoh(stack, zenoh, zenoh_listen, keys) if needs_zen else None
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet) if needs_zen else None
         zen = _zenoh_listener(stack, session, fleet)
         mav = _open_mavlink(stack, mavlink, keys, sysid_offset) if needs_mav else None
         if needs_mav and mav is None and action != "stop":
@@ -414,7 +425,7 @@ def record(
         except OSError as exc:
             raise _fail(f"cannot write {out}: {exc.strerror}") from None
         stack.callback(rec.close)
-        session = _open_zenoh(stack, zenoh, zenoh_listen, keys)
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
         zen = _zenoh_listener(stack, session, fleet)
         mav = _open_mavlink(stack, mavlink, keys, sysid_offset)
         if mav is not None:

@@ -295,6 +295,21 @@ def identity_files(directory: str | Path, name: str) -> tuple[Path, Path, Path]:
     return d / "ca.crt", d / f"{name}.crt", d / f"{name}.key"
 
 
+def identity_fleet(directory: str | Path) -> str:
+    """The fleet name the directory's CA certifies (its O=): the common names' prefix."""
+    return fleet_of(load_certificate(Path(directory) / "ca.crt"))
+
+
+def vehicle_count(directory: str | Path) -> int:
+    """1 + the highest vehicle id with a certificate in ``directory`` (0 if none)."""
+    ids = [
+        int(m.group(1))
+        for p in Path(directory).glob("vehicle-*.crt")
+        if (m := _VEHICLE.match(p.name))
+    ]
+    return max(ids) + 1 if ids else 0
+
+
 def load_certificate(path: Path) -> x509.Certificate:
     """A PEM certificate; :class:`KeyStoreError` if missing or unreadable."""
     try:

@@ -49,7 +49,13 @@ def tls_endpoint(endpoint: str) -> str:
     return "tls/" + endpoint[4:] if endpoint.startswith("tcp/") else endpoint
 
 
-def with_mutual_tls(settings: ZenohSettings, ca: Path, cert: Path, key: Path) -> ZenohSettings:
+def with_mutual_tls(
+    settings: ZenohSettings,
+    ca: Path,
+    cert: Path,
+    key: Path,
+    access_control: dict[str, Any] | None = None,
+) -> ZenohSettings:
     """``settings`` over TLS only, both sides authenticated against the fleet CA ``ca`` with
     this process's ``cert`` and ``key`` (``bearingflock keys init``; docs/flying.md).
 
@@ -57,7 +63,8 @@ def with_mutual_tls(settings: ZenohSettings, ca: Path, cert: Path, key: Path) ->
     anything else. Names are not checked on connect (the endpoints are addresses; what counts
     is that the fleet CA signed the peer's certificate). A peer whose certificate another CA
     signed, or that has none, fails the handshake; Zenoh then opens the session anyway, with
-    no peers, so callers check :func:`peer_count`. A peer given no listen endpoint listens on
+    no peers, so callers check :func:`peer_count`. ``access_control``: the fleet's ACL
+    (:func:`messages.zenoh_acl.fleet_access_control`). A peer given no listen endpoint listens on
     :data:`TLS_DEFAULT_LISTEN` (with TLS only, Zenoh refuses to open a peer without one)."""
     for path in (ca, cert, key):
         if not Path(path).is_file():
@@ -83,7 +90,7 @@ def with_mutual_tls(settings: ZenohSettings, ca: Path, cert: Path, key: Path) ->
         multicast_scouting=settings.multicast_scouting,
         lease_ms=settings.lease_ms,
         config_file=settings.config_file,
-        extra={**settings.extra, **tls},
+        extra={**settings.extra, **tls, **(access_control or {})},
     )
 
 

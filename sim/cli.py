@@ -268,11 +268,20 @@ def sim(
 
         zsettings = ZenohSettings(listen=[zenoh] if zenoh else [], connect=zenoh_connect or [])
         if keys is not None:  # the fleet's identity: Zenoh over mutual TLS as <fleet>-sim
-            from messages.fleetkeys import SIM_NAME, identity_files
+            from messages.fleetkeys import SIM_NAME, KeyStoreError, identity_files, identity_fleet
+            from messages.zenoh_acl import fleet_access_control
 
             try:
-                zsettings = with_mutual_tls(zsettings, *identity_files(keys, SIM_NAME))
-            except ValueError as exc:
+                zsettings = with_mutual_tls(
+                    zsettings,
+                    *identity_files(keys, SIM_NAME),
+                    access_control=fleet_access_control(
+                        fleet,
+                        len(p) if ids is None else max(int(a) for a in ids) + 1,
+                        identity_fleet(keys),
+                    ),
+                )
+            except (ValueError, KeyStoreError) as exc:
                 typer.echo(f"error: {exc}", err=True)
                 raise typer.Exit(2) from None
         session = open_session(zsettings)

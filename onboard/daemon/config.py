@@ -238,11 +238,15 @@ class Fleet(msgspec.Struct, frozen=True):
         keys = self.security_dir()
         if keys is None:
             return settings
-        from messages.fleetkeys import identity_files, vehicle_name
+        from messages.fleetkeys import KeyStoreError, identity_files, identity_fleet, vehicle_name
+        from messages.zenoh_acl import fleet_access_control
 
         try:  # mutual TLS with the fleet CA, as vehicle agent_id
-            return with_mutual_tls(settings, *identity_files(keys, vehicle_name(agent_id)))
-        except ValueError as exc:
+            acl = fleet_access_control(self.config.fleet, self.n, identity_fleet(keys))
+            return with_mutual_tls(
+                settings, *identity_files(keys, vehicle_name(agent_id)), access_control=acl
+            )
+        except (ValueError, KeyStoreError) as exc:
             raise ConfigError(f"{self.path}: security.dir: {exc}") from None
 
     def security_dir(self) -> Path | None:

@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 
 from groundstation.demo import DemoPorts, Evaluator, Processes, plan_formation, write_demo_files
-from messages.fleetkeys import GCS_NAME, identity_files
+from messages.fleetkeys import GCS_NAME, identity_files, identity_fleet
 from messages.transport import ZenohSettings, loopback_endpoint, with_mutual_tls
+from messages.zenoh_acl import fleet_access_control
 from sim.server import free_port_base
 
 N = 3
@@ -68,7 +69,8 @@ def running_fleet(
         procs.start(f"agent{i}", args)
     settings = ZenohSettings(connect=[loopback_endpoint(ports.zenoh + k) for k in range(N + 1)])
     if keys is not None:
-        settings = with_mutual_tls(settings, *identity_files(keys, GCS_NAME))
+        acl = fleet_access_control(name, N, identity_fleet(keys))
+        settings = with_mutual_tls(settings, *identity_files(keys, GCS_NAME), acl)
     ev = Evaluator(name, plan, settings)
     try:
         yield ev, procs, ports, agent_args, name

@@ -3,7 +3,10 @@ fleet file, the simulator with ``--keys``: the three daemons (separate processes
 MAVLink, real Zenoh over mutual TLS) arm, take off and fly the mission over signed links.
 Two rogue Zenoh peers connect to every endpoint of the team, one over plain TCP and one over
 TLS with a certificate from another CA, subscribe to everything and publish ``stop`` to every
-vehicle: they receive nothing, have no peer, and the team flies on. Meanwhile an
+vehicle: they receive nothing, have no peer, and the team flies on. An insider with vehicle
+2's valid certificate publishes under vehicle 0's keys: the access control of every peer
+denies it (a ground-station observer receives none of it, but does receive what the insider
+publishes under its own vehicle 2). Meanwhile an
 attacker on the link sends unsigned and wrongly signed ARM/DISARM, SET_MODE and setpoints to
 every vehicle, including packets with the daemons' own (link id, system, component) and a
 far-future timestamp (pymavlink's hole 1): nothing changes, the daemons keep flying, and the
@@ -21,7 +24,7 @@ from pymavlink.dialects.v20 import common
 from messages import mavlink as mv
 from messages.codec import encode
 from messages.command import COMMAND_TOPIC, FleetCommand
-from messages.fleetkeys import GCS_NAME, identity_files, init_fleet
+from messages.fleetkeys import GCS_NAME, identity_files, init_fleet, vehicle_name
 from messages.keys import fleet_keys, key
 from messages.mavsign import TIMESTAMP_UNITS_PER_S, sign_outgoing, signing_timestamp
 from messages.transport import (
@@ -31,6 +34,7 @@ from messages.transport import (
     peer_count,
     with_mutual_tls,
 )
+from messages.zenoh_acl import fleet_access_control
 
 pytestmark = pytest.mark.e2e
 N = 3
@@ -88,6 +92,45 @@ def _rogue_sessions(tmp_path, fleet: str, zenoh_base: int) -> tuple[list, list[i
     return sessions, got
 
 
+def _insider(tmp_path, fleet: str, zenoh_base: int) -> tuple[int, int]:
+    """Vehicle 2's certificate publishing 20 samples as vehicle 0 and 20 as itself; how many
+    of each a ground-station session (same CA, the fleet's ACL) receives."""
+    keys = tmp_path / "keys"
+    acl = fleet_access_control(fleet, N, "alpha")
+    endpoints = [loopback_endpoint(zenoh_base + k) for k in range(N + 1)]
+    observer = open_session(
+        with_mutual_tls(ZenohSettings(connect=endpoints), *identity_files(keys, GCS_NAME), acl)
+    )
+    insider = open_session(
+        with_mutual_tls(
+            ZenohSettings(connect=endpoints), *identity_files(keys, vehicle_name(2)), acl
+        )
+    )
+    got = {"as_0": 0, "as_2": 0}
+    try:
+        observer.declare_subscriber(
+            key(fleet, 0, "peer/insider"), lambda _s: got.__setitem__("as_0", got["as_0"] + 1)
+        )
+        observer.declare_subscriber(
+            key(fleet, 2, "peer/insider"), lambda _s: got.__setitem__("as_2", got["as_2"] + 1)
+        )
+        deadline = time.monotonic() + 10.0
+        while (peer_count(insider) == 0 or peer_count(observer) == 0) and (
+            time.monotonic() < deadline
+        ):
+            time.sleep(0.1)
+        time.sleep(1.0)  # the subscriptions reach the insider
+        for _ in range(20):
+            insider.put(key(fleet, 0, "peer/insider"), b"forged as vehicle 0")
+            insider.put(key(fleet, 2, "peer/insider"), b"vehicle 2 as itself")
+            time.sleep(0.02)
+        time.sleep(1.0)
+    finally:
+        insider.close()
+        observer.close()
+    return got["as_0"], got["as_2"]
+
+
 def _flying(ev) -> bool:
     st = ev.snapshot()
     return len(st) == N and all(
@@ -122,6 +165,7 @@ def test_secured_team_flies_and_ignores_unsigned_and_forged_mavlink(tmp_path, fl
                     raise AssertionError(f"the attacker got {len(data)} bytes")
                 except TimeoutError:
                     pass
+        as_0, as_2 = _insider(tmp_path, name, ports.zenoh)
         rogue_peers = [peer_count(r) for r in rogues]
         for r in rogues:
             r.close()
@@ -136,8 +180,10 @@ def test_secured_team_flies_and_ignores_unsigned_and_forged_mavlink(tmp_path, fl
         f"unsigned_rejected={counts.get('unsigned_rejected', 0)} "
         f"bad_signature={counts.get('bad_signature', 0)} signed_ok={counts.get('signed_ok', 0)}; "
         f"daemon link counters {link_bad}; rogue Zenoh peers (tcp, other CA): "
-        f"{rogue_peers} peers, {rogue_got} samples received"
+        f"{rogue_peers} peers, {rogue_got} samples received; insider with vehicle 2's "
+        f"certificate: {as_0}/20 received as vehicle 0, {as_2}/20 as itself"
     )
+    assert as_0 == 0 and as_2 == 20
     assert rogue_peers == [0, 0] and rogue_got == [0, 0]
     assert counts.get("unsigned_rejected", 0) == sent // 2
     assert counts.get("bad_signature", 0) == sent // 2

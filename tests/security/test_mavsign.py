@@ -127,3 +127,21 @@ def test_sign_outgoing_turns_pymavlink_own_check_off():
     msgs = rx.parse_buffer(_frame(ARM, _sender(OTHER)) + _frame(HB, _sender(None))) or []
     assert [m.get_type() for m in msgs] == ["COMMAND_LONG", "HEARTBEAT"]
     assert rx.signing.stream_timestamps == {}
+
+
+def test_fleet_access_control_rules():
+    from messages.zenoh_acl import fleet_access_control
+
+    acl = fleet_access_control("t1", 2, "alpha")["access_control"]
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert rules["own_1"]["key_exprs"] == ["bf/t1/1/**"] and rules["own_1"]["flows"] == ["ingress"]
+    assert "put" not in rules["read"]["messages"]  # reading is not writing
+    subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    assert subjects == {
+        "gcs": ["alpha-gcs"], "sim": ["alpha-sim"],
+        "vehicle_0": ["alpha-vehicle-0"], "vehicle_1": ["alpha-vehicle-1"],
+    }  # fmt: skip
+    policies = {p["subjects"][0]: p["rules"] for p in acl["policies"]}
+    assert policies["vehicle_0"] == ["read", "deliver", "own_0"]  # not own_1, not gcs_put
+    assert policies["gcs"] == ["read", "deliver", "gcs_put"]
