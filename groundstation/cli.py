@@ -13,6 +13,7 @@ import typer
 from groundstation.check_cli import check
 from groundstation.demo_cli import demo
 from groundstation.gcs_cli import gcs_app
+from groundstation.keys_cli import keys_app
 from groundstation.plan_cli import plan
 from groundstation.vision_cli import vision_app
 from onboard.daemon.cli import agent
@@ -35,6 +36,7 @@ app.command("scenario")(scenario)
 app.command("sim")(sim)
 app.command("sweep")(sweep)
 app.add_typer(gcs_app, name="gcs")
+app.add_typer(keys_app, name="keys")
 app.add_typer(vision_app, name="vision")
 
 

@@ -469,12 +469,18 @@ def run_demo(
     sitl_params: Sequence[str] = (),
     record: bool = True,
     dynamics: str = "ideal",
+    secure: bool = False,
 ) -> dict[str, Any]:
     """Run the whole mission (module docstring) and return its summary.
 
     ``record``: the ground station's recording of the run goes to ``out/recording.mcap``
     (every Zenoh sample of the fleet, Foxglove's scene of the team) and ``out/recording.tlog``
     (the MAVLink the simulator sends to the ground-station port), as ``gcs record`` writes them.
+
+    ``secure``: the fleet's keys are made in ``out/keys`` (``bearingflock keys init``), the
+    fleet file points at them (``[security] dir``), the simulator plays autopilots that
+    require signed MAVLink (``--keys``), and every Zenoh session runs over mutual TLS with the
+    fleet CA; built-in autopilots only.
 
     ``autopilot = "ardupilot-sitl"``: real ArduCopter SITL processes instead of the simulated
     autopilots (``bearingflock sim --autopilot ardupilot-sitl``; binary ``sitl`` or
@@ -509,10 +515,20 @@ def run_demo(
                      *(a for p in sitl_params for a in ("--sitl-param", p))]  # fmt: skip
     elif autopilot != "builtin":
         raise ValueError(f"unknown autopilot {autopilot!r}: builtin or ardupilot-sitl")
+    if secure and autopilot != "builtin":
+        raise ValueError("--secure: the simulated autopilots only (SITL keys are not provisioned)")
     # the rigidity layer's sensing model is one camera cone; rendered rigs (a forward camera or
     # a ring of them) are not modelled yet, so camera bearings fly without the maintenance
     rigidity = rigidity and bearings == "sim"
     fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity, instance)
+    secure_args: list[str] = []
+    if secure:
+        from messages.fleetkeys import init_fleet
+
+        init_fleet(out / "keys", fleet, vehicles, force=True)  # a fresh identity per run
+        with fleet_path.open("a") as f:
+            f.write('\n[security]\ndir = "keys"\n')
+        secure_args = ["--keys", str(out / "keys")]
     if bearings == "camera":
         stale_s = max(0.5, CAMERA_STALE_FRAMES / render_rate_hz)
         with fleet_path.open("a") as f:
@@ -534,7 +550,8 @@ def run_demo(
             "sim",
             [*simulator_args(vehicles, flavour, out, ports, fleet, seed, speedup, dynamics),
              *camera_args,
-             *sitl_args],
+             *sitl_args,
+             *secure_args],
         )  # fmt: skip
         for i in range(vehicles):
             procs.start(
@@ -542,13 +559,20 @@ def run_demo(
                 ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path),
                  "--bearings", bearings, *agent_camera_args],
             )  # fmt: skip
-        evaluator = Evaluator(
-            fleet,
-            plan,
-            ZenohSettings(
-                connect=[loopback_endpoint(ports.zenoh + k) for k in range(vehicles + 1)]
-            ),
+        zsettings = ZenohSettings(
+            connect=[loopback_endpoint(ports.zenoh + k) for k in range(vehicles + 1)]
         )
+        if secure:  # the evaluator joins as the ground station, over mutual TLS
+            from messages.fleetkeys import GCS_NAME, identity_files
+            from messages.transport import with_mutual_tls
+            from messages.zenoh_acl import fleet_access_control
+
+            zsettings = with_mutual_tls(
+                zsettings,
+                *identity_files(out / "keys", GCS_NAME),
+                access_control=fleet_access_control(fleet, vehicles, fleet),
+            )
+        evaluator = Evaluator(fleet, plan, zsettings)
         ev = evaluator
         if record:
             recording = _start_recording(stack, out / RECORDING_NAME, fleet, ev.session, ports)

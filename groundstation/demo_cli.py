@@ -229,6 +229,14 @@ def demo(
         list[str] | None,
         typer.Option(help="ardupilot-sitl: NAME=VALUE parameter for every vehicle, repeatable."),
     ] = None,
+    secure: Annotated[
+        bool,
+        typer.Option(
+            "--secure",
+            help="Signed MAVLink everywhere: fresh fleet keys in OUT/keys, the fleet file's "
+            "security.dir, a simulator that rejects unsigned messages.",
+        ),
+    ] = False,
     headless: Annotated[
         bool,
         typer.Option(
@@ -278,6 +286,11 @@ def demo(
         flavour = "ardupilot"
     if bearings not in ("sim", "camera"):
         typer.echo("error: --bearings must be sim or camera", err=True)
+        raise typer.Exit(2)
+    if secure and (headless or autopilot != "builtin"):
+        typer.echo(
+            "error: --secure flies the simulated autopilots (not --headless or SITL)", err=True
+        )
         raise typer.Exit(2)
     from onboard.agent_config import Mode
 
@@ -350,6 +363,7 @@ def demo(
                 render_rate_hz=render_rate, loss=loss, rigidity=rigidity, autopilot=autopilot,
                 sitl=sitl, sitl_sensors=sitl_sensors, sitl_params=tuple(sitl_param or ()),
                 dynamics=dynamics,
+                secure=secure,
             )  # fmt: skip
     except KeyboardInterrupt:
         console.print("[yellow]interrupted: every process was stopped[/yellow]")

@@ -63,6 +63,15 @@ ZenohOpt = Annotated[
 ZenohListenOpt = Annotated[
     list[str] | None, typer.Option("--zenoh-listen", help="Zenoh endpoint to listen on.")
 ]
+KeysOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--keys",
+        help="Fleet key directory (security.dir): sign MAVLink to vehicle i with "
+        "mavlink-vehicle-<i>.key and accept only correctly signed messages; Zenoh over mutual "
+        "TLS as the ground station (gcs.crt; tcp/ endpoints become tls/).",
+    ),
+]
 SysidOpt = Annotated[
     int, typer.Option("--sysid-offset", help="MAVLink system id = agent id + this.")
 ]
@@ -109,28 +118,68 @@ def _off(values: list[str]) -> bool:
     return any(v.strip().lower() in ("none", "off", "") for v in values)
 
 
-def _open_mavlink(stack: ExitStack, endpoints: list[str] | None) -> Any:
+def _signing_keys(keys: Path | None, sysid_offset: int) -> dict[int, bytes] | None:
+    """System id -> signing key of every vehicle in ``keys`` (``None`` without ``--keys``)."""
+    if keys is None:
+        return None
+    from messages.fleetkeys import KeyStoreError, load_signing_keys
+
+    try:
+        return {i + sysid_offset: k for i, k in load_signing_keys(keys).items()}
+    except KeyStoreError as exc:
+        raise _fail(f"--keys: {exc}") from None
+
+
+def _open_mavlink(
+    stack: ExitStack,
+    endpoints: list[str] | None,
+    keys: Path | None = None,
+    sysid_offset: int = 1,
+) -> Any:
     from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
 
     values = endpoints or [DEFAULT_MAVLINK]
     if _off(values):
         return None
+    signing = _signing_keys(keys, sysid_offset)
     try:
-        listener = MavlinkListener([parse_endpoint(e) for e in values])
+        listener = MavlinkListener([parse_endpoint(e) for e in values], signing_keys=signing)
     except (ValueError, OSError) as exc:
         raise _fail(str(exc)) from None
     stack.callback(listener.close)
     return listener.start()
 
 
-def _open_zenoh(stack: ExitStack, connect: list[str] | None, listen: list[str] | None) -> Any:
-    from messages.transport import ZenohSettings, open_session
+def _open_zenoh(
+    stack: ExitStack,
+    connect: list[str] | None,
+    listen: list[str] | None,
+    keys: Path | None = None,
+    fleet: str = "alpha",
+) -> Any:
+    from messages.transport import ZenohSettings, open_session, with_mutual_tls
 
     values = connect if connect is not None else [DEFAULT_ZENOH]
     if _off(values):
         return None
+    settings = ZenohSettings(connect=values, listen=listen or [])
+    if keys is not None:  # mutual TLS with the fleet CA, as the ground station
+        from messages.fleetkeys import (
+            GCS_NAME,
+            KeyStoreError,
+            identity_files,
+            identity_fleet,
+            vehicle_count,
+        )
+        from messages.zenoh_acl import fleet_access_control
+
+        try:
+            acl = fleet_access_control(fleet, vehicle_count(keys), identity_fleet(keys))
+            settings = with_mutual_tls(settings, *identity_files(keys, GCS_NAME), acl)
+        except (ValueError, KeyStoreError) as exc:
+            raise _fail(f"--keys: {exc}") from None
     try:
-        session = open_session(ZenohSettings(connect=values, listen=listen or []))
+        session = open_session(settings)
     except Exception as exc:  # zenoh raises its own error type for a bad endpoint
         raise _fail(f"cannot open a Zenoh session: {exc}") from None
     stack.callback(session.close)
@@ -184,6 +233,7 @@ def monitor(
         float, typer.Option("--wait", help="With --once: listen this long first (s).")
     ] = 2.5,
     sysid_offset: SysidOpt = 1,
+    keys: KeysOpt = None,
 ) -> None:
     """Live table of every vehicle: link health, autopilot, estimator, alarms."""
     from groundstation.gcs.monitor import Monitor, MonitorConfig, render
@@ -192,9 +242,11 @@ def monitor(
     if json and not once:
         raise _fail("--json needs --once")
     with ExitStack() as stack:
-        session = _open_zenoh(stack, zenoh, zenoh_listen)  # first: opening it takes a while
+        session = _open_zenoh(
+            stack, zenoh, zenoh_listen, keys, fleet
+        )  # first: opening takes a while
         zen = _zenoh_listener(stack, session, fleet)
-        mav = _open_mavlink(stack, mavlink)
+        mav = _open_mavlink(stack, mavlink, keys, sysid_offset)
         mon = Monitor(MonitorConfig(fleet=fleet, sysid_offset=sysid_offset), mav, zen)
         if once:
             time.sleep(max(0.0, wait))
@@ -225,6 +277,7 @@ def _fleet_command(
     sysid_offset: int,
     alt: float,
     json: bool,
+    keys: Path | None = None,
 ) -> None:
     from groundstation.gcs import commands as cmds
 
@@ -240,9 +293,9 @@ def _fleet_command(
     needs_mav = action in ("arm", "takeoff", "land", "stop")
     needs_zen = action in ("start", "hold", "stop")
     with ExitStack() as stack:
-        session = _open_zenoh(stack, zenoh, zenoh_listen) if needs_zen else None
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet) if needs_zen else None
         zen = _zenoh_listener(stack, session, fleet)
-        mav = _open_mavlink(stack, mavlink) if needs_mav else None
+        mav = _open_mavlink(stack, mavlink, keys, sysid_offset) if needs_mav else None
         if needs_mav and mav is None and action != "stop":
             raise _fail(f"{action} goes over MAVLink: --mavlink none is not possible")
         if needs_zen and zen is None and action != "stop":
@@ -345,10 +398,11 @@ def _make_command(action: str, doc: str) -> None:
             ),
         ] = 2.5,
         json: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+        keys: KeysOpt = None,
     ) -> None:
         _fleet_command(
             action, ids, all_, yes, fleet, mavlink, zenoh, zenoh_listen, timeout, discover,
-            sysid_offset, alt, json,
+            sysid_offset, alt, json, keys,
         )  # fmt: skip
 
     command.__doc__ = doc
@@ -377,6 +431,8 @@ def record(
     duration: Annotated[
         float | None, typer.Option("--duration", help="Stop after this many seconds.")
     ] = None,
+    keys: KeysOpt = None,
+    sysid_offset: SysidOpt = 1,
 ) -> None:
     """Record every Zenoh sample of the fleet and every MAVLink message heard (MCAP)."""
     from groundstation.gcs.record import Recorder
@@ -389,9 +445,9 @@ def record(
         except OSError as exc:
             raise _fail(f"cannot write {out}: {exc.strerror}") from None
         stack.callback(rec.close)
-        session = _open_zenoh(stack, zenoh, zenoh_listen)
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
         zen = _zenoh_listener(stack, session, fleet)
-        mav = _open_mavlink(stack, mavlink)
+        mav = _open_mavlink(stack, mavlink, keys, sysid_offset)
         if mav is not None:
             mav.hooks.append(rec.mavlink)
         if zen is not None:

@@ -39,6 +39,66 @@ def loopback_endpoint(port: int) -> str:
     return f"tcp/127.0.0.1:{port}"
 
 
+TLS_DEFAULT_LISTEN = "tls/127.0.0.1:0"
+"""Where a TLS peer that was given no listen endpoint listens (an ephemeral loopback port: it
+reaches the others by connecting to them)."""
+
+
+def tls_endpoint(endpoint: str) -> str:
+    """``tcp/HOST:PORT`` as ``tls/HOST:PORT`` (other protocols unchanged)."""
+    return "tls/" + endpoint[4:] if endpoint.startswith("tcp/") else endpoint
+
+
+def with_mutual_tls(
+    settings: ZenohSettings,
+    ca: Path,
+    cert: Path,
+    key: Path,
+    access_control: dict[str, Any] | None = None,
+) -> ZenohSettings:
+    """``settings`` over TLS only, both sides authenticated against the fleet CA ``ca`` with
+    this process's ``cert`` and ``key`` (``bearingflock keys init``; docs/flying.md).
+
+    Every ``tcp/`` endpoint becomes ``tls/``; ``transport.link.protocols = ["tls"]`` refuses
+    anything else. Names are not checked on connect (the endpoints are addresses; what counts
+    is that the fleet CA signed the peer's certificate). A peer whose certificate another CA
+    signed, or that has none, fails the handshake; Zenoh then opens the session anyway, with
+    no peers, so callers check :func:`peer_count`. ``access_control``: the fleet's ACL
+    (:func:`messages.zenoh_acl.fleet_access_control`). A peer given no listen endpoint listens on
+    :data:`TLS_DEFAULT_LISTEN` (with TLS only, Zenoh refuses to open a peer without one)."""
+    for path in (ca, cert, key):
+        if not Path(path).is_file():
+            raise ValueError(f"Zenoh TLS: {path} is missing (bearingflock keys init / issue)")
+    tls = {
+        "transport/link/protocols": ["tls"],
+        "transport/link/tls/root_ca_certificate": str(ca),
+        "transport/link/tls/listen_certificate": str(cert),
+        "transport/link/tls/listen_private_key": str(key),
+        "transport/link/tls/connect_certificate": str(cert),
+        "transport/link/tls/connect_private_key": str(key),
+        "transport/link/tls/enable_mtls": True,
+        "transport/link/tls/verify_name_on_connect": False,
+    }
+    listen = [tls_endpoint(e) for e in settings.listen]
+    if not listen and settings.mode == "peer":
+        # Zenoh's default listener is tcp/[::]:0, which TLS-only refuses: no session at all
+        listen = [TLS_DEFAULT_LISTEN]
+    return ZenohSettings(
+        mode=settings.mode,
+        listen=listen,
+        connect=[tls_endpoint(e) for e in settings.connect],
+        multicast_scouting=settings.multicast_scouting,
+        lease_ms=settings.lease_ms,
+        config_file=settings.config_file,
+        extra={**settings.extra, **tls, **(access_control or {})},
+    )
+
+
+def peer_count(session: Any) -> int:
+    """How many Zenoh peers and routers a session is connected to."""
+    return len(list(session.info.peers_zid())) + len(list(session.info.routers_zid()))
+
+
 def zenoh_config(settings: ZenohSettings) -> Any:
     """Build a ``zenoh.Config`` (Zenoh is imported here, not at module import)."""
     import zenoh

@@ -58,6 +58,15 @@ def sim(
     signing_key: Annotated[
         Path | None, typer.Option(help="MAVLink 2 signing key file (hex, raw or passphrase).")
     ] = None,
+    keys: Annotated[
+        Path | None,
+        typer.Option(
+            "--keys",
+            help="Fleet key directory (bearingflock keys init): vehicle i signs and checks with "
+            "mavlink-vehicle-<i>.key, as its autopilot would, and Zenoh runs over mutual TLS "
+            "(sim.crt, tcp/ endpoints become tls/).",
+        ),
+    ] = None,
     zenoh: Annotated[
         str | None,
         typer.Option(
@@ -190,7 +199,7 @@ def sim(
             name
             for name, given in (
                 ("--lockstep", lockstep), ("--strict", strict), ("--signing-key", signing_key),
-                ("--render-camera", render_camera),
+                ("--keys", keys), ("--render-camera", render_camera),
             )
             if given
         ]  # fmt: skip
@@ -215,8 +224,19 @@ def sim(
         )  # fmt: skip
         code = run_sitl(p, yaw, ids, options, camera_cfg, zenoh, zenoh_connect or [], fleet, quiet)
         raise typer.Exit(code)
+    if keys is not None and signing_key is not None:
+        raise typer.BadParameter("--keys and --signing-key: give one")
     try:
         key = load_key(signing_key) if signing_key is not None else None
+        per_vehicle = None
+        if keys is not None:
+            from messages.fleetkeys import KeyStoreError, load_signing_key
+
+            try:
+                agent_ids = ids if ids is not None else list(range(len(p)))
+                per_vehicle = [load_signing_key(keys, int(a)) for a in agent_ids]
+            except KeyStoreError as exc:
+                raise ValueError(str(exc)) from None
         config = SimConfig(
             p,
             yaw,
@@ -233,6 +253,7 @@ def sim(
             ekf_warmup_s=ekf_warmup,
             boot_streams=boot_streams,
             signing_key=key,
+            signing_keys=per_vehicle,
             noise=SensorNoise(seed=seed),
             realistic=RealisticConfig(seed=seed) if dynamics == "realistic" else None,
         )
@@ -250,11 +271,32 @@ def sim(
     images: Any = None
     subscribers: list[Any] = []  # keep Zenoh subscribers alive
     if zenoh is not None or zenoh_connect:
-        from messages.transport import ZenohSettings, open_session, publisher_put
-
-        session = open_session(
-            ZenohSettings(listen=[zenoh] if zenoh else [], connect=zenoh_connect or [])
+        from messages.transport import (
+            ZenohSettings,
+            open_session,
+            publisher_put,
+            with_mutual_tls,
         )
+
+        zsettings = ZenohSettings(listen=[zenoh] if zenoh else [], connect=zenoh_connect or [])
+        if keys is not None:  # the fleet's identity: Zenoh over mutual TLS as <fleet>-sim
+            from messages.fleetkeys import SIM_NAME, KeyStoreError, identity_files, identity_fleet
+            from messages.zenoh_acl import fleet_access_control
+
+            try:
+                zsettings = with_mutual_tls(
+                    zsettings,
+                    *identity_files(keys, SIM_NAME),
+                    access_control=fleet_access_control(
+                        fleet,
+                        len(p) if ids is None else max(int(a) for a in ids) + 1,
+                        identity_fleet(keys),
+                    ),
+                )
+            except (ValueError, KeyStoreError) as exc:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(2) from None
+        session = open_session(zsettings)
         put = publisher_put(session)
         server.hooks.append(CameraPublisher(camera, fleet, put, ids=ids))
         server.hooks.append(ClockPublisher(fleet, put, server.clock, config.dt_s))
@@ -289,7 +331,7 @@ def sim(
     typer.echo(
         f"{server.world.n} {flavour} vehicles, speedup {speedup}, "
         f"{'lockstep' if lockstep else 'real time'}{', strict' if strict else ''}"
-        f"{', signed' if key else ''}; Ctrl-C to stop"
+        f"{', signed' if key or per_vehicle else ''}; Ctrl-C to stop"
     )
     sys.stdout.flush()
 

@@ -74,6 +74,10 @@ class SimConfig:
     boot_streams: bool = False
     """ArduPilot flavour: stream from boot instead of only on request."""
     signing_key: bytes | None = None
+    """One MAVLink signing key for every vehicle (``--signing-key``)."""
+    signing_keys: list[bytes] | None = None
+    """One key per vehicle, ``signing_keys[i]`` for vehicle ``i`` (``--keys DIR``, the fleet's
+    ``mavlink-vehicle-<i>.key``); takes precedence over ``signing_key``."""
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     noise: SensorNoise = field(default_factory=SensorNoise)
     realistic: RealisticConfig | None = None
@@ -89,6 +93,8 @@ class SimConfig:
             raise ValueError(f"dt_s must be > 0, got {self.dt_s}")
         if self.bind_base is None:
             self.bind_base = self.client_base + 40
+        if self.signing_keys is not None and len(self.signing_keys) != self.n:
+            raise ValueError(f"signing_keys: {len(self.signing_keys)} keys for {self.n} vehicles")
 
     @property
     def n(self) -> int:
@@ -146,7 +152,8 @@ class SimServer:
         cfg = self.config
         counters = LinkCounters()
         ap = make_autopilot(cfg.flavour, i, self.world, options, counters)
-        codec = Codec(ap.dialect, ap.sys_id, signing_key=cfg.signing_key, counters=counters)
+        key = cfg.signing_keys[i] if cfg.signing_keys is not None else cfg.signing_key
+        codec = Codec(ap.dialect, ap.sys_id, signing_key=key, counters=counters)
         link: UdpLink | TcpLink
         if cfg.transport == "udp":
             assert cfg.bind_base is not None
@@ -292,7 +299,7 @@ class SimServer:
         return (
             f"t={self.world.t_s:8.2f}s  armed {armed}/{len(self.autopilots)}  flying {flying}  "
             f"{mode_s}  rx {c['rx_packets']} tx {c['tx_packets']}  bad {bad}  "
-            f"rejected {c['unsigned_rejected'] + c['bad_signature']}  overruns {c['overruns']}"
+            f"rejected {c['unsigned_rejected'] + c['bad_signature'] + c['replayed']}  overruns {c['overruns']}"
         )
 
 

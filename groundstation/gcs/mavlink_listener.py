@@ -17,6 +17,13 @@ whenever one of those streams stops (``request_streams=False`` turns that off).
 Every valid message is folded into a :class:`~groundstation.gcs.mavlink_state.MavlinkState`
 under a lock and passed to the ``on_message`` hooks with its raw bytes and receive time (the
 recorder is one). Garbage and bad CRCs are counted, never raised.
+
+With ``signing_keys`` (system id -> 32-byte key, the fleet's ``mavlink-vehicle-<id>.key``),
+what goes to system ``s`` is signed with ``s``'s key (heartbeats to a ``udpout`` endpoint,
+whose system is not known yet, once with each key), and every received message must pass a
+:class:`~messages.mavsign.SignatureVerifier` first: a rejected one is counted
+(``sig_bad_signature``, ``sig_unsigned``, ``sig_replayed``) and changes no state, and only a
+correctly signed one tells us where a system is.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ import select
 import socket
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,10 +47,13 @@ from groundstation.gcs.mavlink_state import (
     streams_to_request,
 )
 from messages import mavlink as mv
+from messages.mavsign import SignatureVerifier, Verdict, keep_timestamp_current, sign_outgoing
 
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190
 """MAV_COMP_ID_MISSIONPLANNER, as QGroundControl and MAVProxy use."""
+GCS_SIGNING_LINK_ID = 2
+"""Link id in the ground station's signatures (the daemons use 1, the autopilots 0)."""
 HEARTBEAT_PERIOD_S = 1.0
 RECEIVE_BUFFER_BYTES = 4 << 20
 """Asked for (the kernel caps it at ``net.core.rmem_max``): a busy machine can stall the
@@ -93,6 +103,7 @@ class MavlinkListener:
         endpoints: Sequence[MavlinkEndpoint],
         clock: Callable[[], float] = time.monotonic,
         request_streams: bool = True,
+        signing_keys: Mapping[int, bytes] | None = None,
     ) -> None:
         binds = [e for e in endpoints if e.kind == "udp"]
         if len(binds) > 1:
@@ -119,6 +130,13 @@ class MavlinkListener:
                 "it? Pass a free --mavlink udp:HOST:PORT, or udpout:HOST:PORT to the vehicles"
             ) from None
         self._tx = dialect.MAVLink(_Sink(), srcSystem=GCS_SYSTEM_ID, srcComponent=GCS_COMPONENT_ID)
+        self.signing_keys = dict(signing_keys) if signing_keys else None
+        self.verifier = SignatureVerifier(self.signing_keys) if self.signing_keys else None
+        self._signed_tx: dict[int, Any] = {}
+        for sysid, key in (self.signing_keys or {}).items():
+            tx = dialect.MAVLink(_Sink(), srcSystem=GCS_SYSTEM_ID, srcComponent=GCS_COMPONENT_ID)
+            sign_outgoing(tx, key, GCS_SIGNING_LINK_ID)
+            self._signed_tx[sysid] = tx
         self._parsers: dict[tuple[str, int], Any] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -194,9 +212,9 @@ class MavlinkListener:
                     self.state.count("bad_crc" if "CRC" in str(m.reason) else "garbage")
                 elif kind.startswith("UNKNOWN_"):
                     self.state.count("unknown_ids")
-                else:
+                elif (verdict := self._verify(m)) is not None:
                     sys = self.state.fold(m, t_mono)
-                    if sys is not None:
+                    if sys is not None and verdict is Verdict.GOOD:
                         self.addresses[sys.sysid] = addr
                     good.append(m)
             if parser.buf_len() > 0:  # a datagram never continues in the next one
@@ -209,6 +227,15 @@ class MavlinkListener:
             for hook in self.hooks:
                 hook(m, raw, t_wall)
         return good
+
+    def _verify(self, m: Any) -> Verdict | None:
+        """The verdict on an accepted message (``GOOD`` without signing), ``None`` if rejected
+        (counted; call with the lock held)."""
+        if self.verifier is None:
+            return Verdict.GOOD
+        verdict = self.verifier.check_message(m)
+        self.state.count(f"sig_{verdict.value}")
+        return verdict if verdict.accepted else None
 
     # --- read ---------------------------------------------------------------------------------------
     def systems(self) -> dict[int, SystemTelemetry]:
@@ -226,10 +253,20 @@ class MavlinkListener:
             return [a for a in self.state.acks if a.t_s >= t_s]
 
     # --- send ---------------------------------------------------------------------------------------
-    def _send(self, msg: Any, addr: tuple[str, int]) -> bool:
+    def _send(self, msg: Any, addr: tuple[str, int], sysid: int | None = None) -> bool:
+        """Pack (signed with ``sysid``'s key when signing) and send; ``False`` on failure or
+        when signing is on and we hold no key for ``sysid``."""
         with self._send_lock:
-            buf = msg.pack(self._tx)
-            self._tx.seq = (self._tx.seq + 1) % 256
+            tx = self._tx
+            if self.signing_keys is not None:
+                tx = self._signed_tx.get(sysid) if sysid is not None else None
+                if tx is None:
+                    with self.lock:
+                        self.state.count("sig_no_key")
+                    return False
+                keep_timestamp_current(tx)
+            buf = msg.pack(tx)
+            tx.seq = (tx.seq + 1) % 256
         try:
             self.sock.sendto(buf, addr)
         except OSError:
@@ -242,9 +279,17 @@ class MavlinkListener:
         """To the ``udpout`` endpoints and to every vehicle heard (its address)."""
         hb = dialect.MAVLink_heartbeat_message(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, 4, 3)
         with self.lock:
-            heard = list(self.addresses.values())
-        for addr in dict.fromkeys([*self.outs, *heard]):
-            self._send(hb, addr)
+            heard = dict(self.addresses)
+        if self.signing_keys is None:
+            for addr in dict.fromkeys([*self.outs, *heard.values()]):
+                self._send(hb, addr)
+            return
+        for sysid, addr in heard.items():
+            self._send(hb, addr, sysid)
+        for addr in self.outs:  # whose it is is not known yet: one copy per key
+            for sysid in self._signed_tx:
+                if heard.get(sysid) != addr:
+                    self._send(hb, addr, sysid)
 
     def _ask_for_streams(self, now_s: float) -> None:
         """SET_MESSAGE_INTERVAL for every stream an ArduPilot does not send us (yet)."""
@@ -271,7 +316,7 @@ class MavlinkListener:
             return False
         p = command_params(params)
         msg = dialect.MAVLink_command_long_message(sysid, 1, command, confirmation, *p)
-        return self._send(msg, addr)
+        return self._send(msg, addr, sysid)
 
 
 def command_params(params: Sequence[float]) -> list[float]:

@@ -103,6 +103,11 @@ class LinkConfig:
     )
     clock: Callable[[], float] = time.monotonic
     """Wall clock used for ages and timeouts (injected for tests)."""
+    signing_key: bytes | None = field(default=None, repr=False)
+    """MAVLink 2 signing key of this autopilot link: sign everything sent, accept only what is
+    correctly signed (:mod:`messages.mavsign`); ``None``: no signing."""
+    signing_link_id: int = 1
+    """Link id in our signatures (the autopilot's streams are per link id, system, component)."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -122,6 +127,10 @@ class LinkConfig:
                 raise ValueError(f"{name} must be finite and > 0, got {value}")
         if self.command_sends < 1:
             raise ValueError(f"command_sends must be >= 1, got {self.command_sends}")
+        if self.signing_key is not None and len(self.signing_key) != 32:
+            raise ValueError(f"signing_key must be 32 bytes, got {len(self.signing_key)}")
+        if not 0 <= self.signing_link_id <= 255:
+            raise ValueError(f"signing_link_id must be in 0..255, got {self.signing_link_id}")
         if not (math.isfinite(self.retry_timeout_s) and self.retry_timeout_s >= 0.0):
             raise ValueError(f"retry_timeout_s must be finite and >= 0, got {self.retry_timeout_s}")
 
@@ -146,6 +155,26 @@ class LinkCounters:
     """Stream periods where the agent's setpoint was too old and zero was sent instead."""
     link_errors: int = 0
     """Socket errors while reading or writing."""
+    signed_ok: int = 0
+    """With signing on: correctly signed messages (before the system/component checks)."""
+    bad_signature: int = 0
+    """With signing on: wrong signature (dropped before anything looks at them)."""
+    unsigned_rejected: int = 0
+    """With signing on: unsigned messages not on the allow-list (dropped)."""
+    replayed: int = 0
+    """With signing on: correctly signed but not newer than the stream's last (dropped)."""
+    signing_unavailable: int = 0
+    """With signing on: sends skipped while pymavlink still spoke MAVLink 1 (it switches to 2
+    on the autopilot's first v2 frame), which cannot sign."""
+
+
+SIGNING_REJECTIONS = ("bad_signature", "unsigned_rejected", "replayed", "signing_unavailable")
+
+
+def signing_rejections(counters: LinkCounters) -> dict[str, int]:
+    """The MAVLink signing rejections that are not zero (none without signing or attack): what
+    the daemon adds to its status's ``dropped`` as ``mavlink_<name>``."""
+    return {k: v for k in SIGNING_REJECTIONS if (v := getattr(counters, k))}
 
 
 @dataclass(frozen=True)

@@ -91,11 +91,19 @@ def map_result(name: str) -> tuple[int | None, bool]:
     return _MAVSDK_RESULTS.get(name, (mv.RESULT_FAILED, False))
 
 
+MAVSDK_CANNOT_SIGN = (
+    "the mavsdk backend cannot sign MAVLink 2 (MAVSDK-Python 4.x has no signing API), and "
+    'this fleet requires signing ([security] dir): use [mavlink] backend = "pymavlink"'
+)
+
+
 class MavsdkLink(LinkBookkeeping):
     """:class:`~onboard.autopilot.base.AutopilotLink` over MAVSDK v4 (module docstring)."""
 
     def __init__(self, config: LinkConfig | None = None) -> None:
         super().__init__(config)
+        if self.config.signing_key is not None:
+            raise LinkError(MAVSDK_CANNOT_SIGN)
         self._sent_setpoint: Saturated | None = None
         self._stop_request: str | None = None
         self._thread: threading.Thread | None = None

@@ -34,6 +34,7 @@ while a takeoff climbs, so :meth:`start_velocity_control` waits for the climb to
 from __future__ import annotations
 
 import math
+import sys
 import threading
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -41,6 +42,7 @@ from typing import Any
 from pymavlink import mavutil
 
 from messages import mavlink as mv
+from messages.mavsign import SignatureVerifier, Verdict, keep_timestamp_current, sign_outgoing
 from onboard.autopilot.base import (
     ActionResult,
     Flavour,
@@ -93,6 +95,8 @@ class PymavlinkLink(LinkBookkeeping):
         self._threads: list[threading.Thread] = []
         self._other_systems: set[int] = set()
         """Autopilots heard that are not ``config.system_id`` (named if it never comes)."""
+        self._verifier: SignatureVerifier | None = None
+        """With ``config.signing_key``: decides on every received message, first."""
 
     # --- identity -------------------------------------------------------------------------------
     @property
@@ -132,14 +136,23 @@ class PymavlinkLink(LinkBookkeeping):
             )
         except (OSError, ValueError, ImportError) as exc:
             raise LinkError(f"cannot open {url!r}: {exc}") from exc
+        if self.config.signing_key is not None:
+            self._verifier = SignatureVerifier(self.config.signing_key)
         self._start_thread(self._receive_loop, "autopilot-rx")
         with self._cond:
             heard = self._cond.wait_for(lambda: self._target is not None, timeout_s)
         if not heard:
             others = set(self._other_systems)
+            rejected = self._signing_rejections()
             self.close()
             if others and self.config.system_id is not None:
                 raise LinkError(wrong_system_message(url, self.config.system_id, others, timeout_s))
+            if rejected:
+                raise LinkError(
+                    f"no correctly signed autopilot heartbeat on {url!r} within {timeout_s} s: "
+                    f"{rejected} (does the autopilot have this vehicle's signing key? "
+                    "docs/flying.md)"
+                )
             raise LinkError(f"no autopilot heartbeat on {url!r} within {timeout_s} s")
         self._start_thread(self._send_loop, "autopilot-tx")
         if request_streams is None:
@@ -205,6 +218,27 @@ class PymavlinkLink(LinkBookkeeping):
             if msg is not None:
                 self.feed(msg)
 
+    def _signing_rejections(self) -> str:
+        with self._cond:
+            c = self._counts
+            parts = [f"{c[k]} {k}" for k in ("bad_signature", "unsigned_rejected", "replayed")]
+            return ", ".join(p for p in parts if not p.startswith("0 "))
+
+    def _verified(self, msg: Any) -> bool:
+        """With signing: the verifier's verdict, counted (call with the lock held)."""
+        if self._verifier is None:
+            return True
+        verdict = self._verifier.check_message(msg)
+        name = {
+            Verdict.GOOD: "signed_ok",
+            Verdict.BAD_SIGNATURE: "bad_signature",
+            Verdict.UNSIGNED: "unsigned_rejected",
+            Verdict.REPLAYED: "replayed",
+        }.get(verdict)
+        if name is not None:
+            self._counts[name] += 1
+        return verdict.accepted
+
     def feed(self, msg: Any) -> None:
         """Handle one parsed message (the receive thread's work; public for tests and replay)."""
         kind = msg.get_type()
@@ -212,6 +246,8 @@ class PymavlinkLink(LinkBookkeeping):
         with self._cond:
             if kind == "BAD_DATA" or kind.startswith("UNKNOWN_"):  # garbage, CRC, unknown id
                 self._counts["bad_data"] += 1
+                return
+            if not self._verified(msg):  # before anything reads it
                 return
             src = (msg.get_srcSystem(), msg.get_srcComponent())
             if self._target is None and not self._adopt(msg, src):
@@ -283,10 +319,27 @@ class PymavlinkLink(LinkBookkeeping):
             return False
         with self._send_lock:
             try:
+                if self._verifier is not None and not self._signing(conn.mav):
+                    return False
                 fn(conn.mav)
             except Exception:
                 self._count("link_errors")
                 return False
+        return True
+
+    def _signing(self, mav: Any) -> bool:
+        """Make ``mav`` sign (again: pymavlink replaces its MAVLink object when it switches to
+        MAVLink 2 on the first v2 frame, and the new one would send unsigned); ``False`` for a
+        MAVLink 1 object, which cannot sign: nothing is sent then (counted)."""
+        key = self.config.signing_key
+        assert key is not None
+        module = sys.modules.get(type(mav).__module__)
+        if getattr(module, "WIRE_PROTOCOL_VERSION", "1.0") != "2.0":
+            self._count("signing_unavailable")
+            return False
+        if mav.signing.secret_key != key:
+            sign_outgoing(mav, key, self.config.signing_link_id)
+        keep_timestamp_current(mav)
         return True
 
     def _boot_ms(self) -> int:

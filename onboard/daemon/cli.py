@@ -6,6 +6,7 @@ import logging
 import math
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -94,12 +95,26 @@ def agent(
         typer.echo(f"error: --id {agent_id}: the fleet has agents 0..{fleet.n - 1}", err=True)
         raise typer.Exit(2)
     c = fleet.config
+    try:
+        signing_key = fleet.signing_key(agent_id)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if signing_key is not None and (backend or c.mavlink.backend) == "mavsdk":
+        from onboard.autopilot.mavsdk_link import MAVSDK_CANNOT_SIGN
+
+        typer.echo(f"error: {MAVSDK_CANNOT_SIGN}", err=True)
+        raise typer.Exit(2)
     bearings = bearings or c.bearings
     if bearings not in ("sim", "camera"):
         typer.echo(f"error: --bearings must be sim or camera, got {bearings!r}", err=True)
         raise typer.Exit(2)
     pipelines = _camera_pipelines(fleet, camera, markers) if bearings == "camera" else []
-    settings = fleet.zenoh_settings(agent_id)
+    try:
+        settings = fleet.zenoh_settings(agent_id)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
     neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}
@@ -112,6 +127,8 @@ def agent(
         c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss,
         listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
     )  # fmt: skip
+    if signing_key is not None:  # [security]: Zenoh over mutual TLS
+        _warn_without_peers(peers.session, TLS_PEER_WAIT_S)
     if c.clock == "sim":
         follower = SimClockFollower(drop=drops.drop)
         peers.subscribe(clock_key(c.fleet), sim_clock_handler(follower, drops.drop))
@@ -141,6 +158,7 @@ def agent(
             heartbeat_timeout_s=LinkConfig.heartbeat_timeout_s * slowdown,
             stream_rates_hz=_stream_rates(bearings, c.camera.attitude_rate_hz),
             system_id=system_id or fleet.system_id(agent_id),
+            signing_key=signing_key,
         ),
     )
     on_status = None
@@ -189,7 +207,37 @@ def agent(
                 "%d cut at the border, %d bearings",
                 st.frames, st.skipped, st.late, st.incomplete, st.cut, st.detections,
             )  # fmt: skip
+        if signing_key is not None:
+            lc = link.telemetry().counters
+            logging.getLogger(__name__).info(
+                "mavlink signing: %d signed_ok, %d bad_signature, %d unsigned_rejected, "
+                "%d replayed, %d signing_unavailable",
+                lc.signed_ok, lc.bad_signature, lc.unsigned_rejected, lc.replayed,
+                lc.signing_unavailable,
+            )  # fmt: skip
         _close_all(link.close, peers.close)
+
+
+TLS_PEER_WAIT_S = 10.0
+"""With Zenoh TLS: no peer after this long is reported (a failed handshake does not fail
+``zenoh.open``, the session just stays alone)."""
+
+
+def _warn_without_peers(session: Any, wait_s: float) -> None:
+    """Log an error once if ``session`` has no Zenoh peer ``wait_s`` after it opened."""
+    from messages.transport import peer_count
+
+    def check() -> None:
+        if peer_count(session) == 0:
+            logging.getLogger(__name__).error(
+                "zenoh: no peer over TLS after %.0f s: the other processes' certificates are "
+                "not from this fleet's CA, or they are not up (bearingflock keys show DIR)",
+                wait_s,
+            )
+
+    timer = threading.Timer(wait_s, check)
+    timer.daemon = True
+    timer.start()
 
 
 def _close_all(*closers: Any) -> None:

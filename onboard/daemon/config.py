@@ -75,6 +75,13 @@
     lambda_min = 0.02                 # ... and grows without bound towards this one
     r_safe_m = 1.5                    # collision avoidance starts inside this distance
 
+    [security]                        # docs/flying.md "Securing the links"
+    dir = ""                          # key directory of `bearingflock keys init` (relative to
+                                      # this file): MAVLink 2 signing with mavlink-vehicle-<id>.key
+                                      # on every autopilot link, and Zenoh over mutual TLS with
+                                      # the fleet CA (vehicle-<id>.crt/.key, every tcp/ endpoint
+                                      # becomes tls/); "" = neither
+
     [camera]                          # bearings = "camera" (docs/vision.md)
     files = ["camera.toml"]           # camera rig: one camera file per camera_id, relative to
                                       # this file
@@ -97,7 +104,7 @@ from typing import Literal
 import msgspec
 
 from messages.formation import Formation, FormationError, load_formation
-from messages.transport import ZenohSettings, loopback_endpoint
+from messages.transport import ZenohSettings, loopback_endpoint, with_mutual_tls
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
@@ -177,6 +184,10 @@ class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
     attitude_rate_hz: float = 100.0
 
 
+class SecuritySection(msgspec.Struct, forbid_unknown_fields=True):
+    dir: str = ""
+
+
 class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
     formation: str
     fleet: str = "alpha"
@@ -194,6 +205,7 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
     rigidity: RigiditySection = msgspec.field(default_factory=RigiditySection)
     camera: CameraSection = msgspec.field(default_factory=CameraSection)
     sfm: SfmSection = msgspec.field(default_factory=SfmSection)
+    security: SecuritySection = msgspec.field(default_factory=SecuritySection)
 
 
 class Fleet(msgspec.Struct, frozen=True):
@@ -235,13 +247,44 @@ class Fleet(msgspec.Struct, frozen=True):
             e.split("/", 1)[-1] in (f"0.0.0.0:{port}", f"[::]:{port}") for e in extra_listen
         )
         loopback = [] if covered or z.mode != "peer" else [own]
-        return ZenohSettings(
+        settings = ZenohSettings(
             mode=z.mode,
             listen=[*loopback, *extra_listen],
             connect=[loopback_endpoint(p) for p in [self.sim_zenoh_port(), *others]] + z.connect,
             multicast_scouting=z.multicast_scouting,
             config_file=str(self.resolve(z.config_file)) if z.config_file else None,
         )
+        keys = self.security_dir()
+        if keys is None:
+            return settings
+        from messages.fleetkeys import KeyStoreError, identity_files, identity_fleet, vehicle_name
+        from messages.zenoh_acl import fleet_access_control
+
+        try:  # mutual TLS with the fleet CA, as vehicle agent_id
+            acl = fleet_access_control(self.config.fleet, self.n, identity_fleet(keys))
+            return with_mutual_tls(
+                settings, *identity_files(keys, vehicle_name(agent_id)), access_control=acl
+            )
+        except (ValueError, KeyStoreError) as exc:
+            raise ConfigError(f"{self.path}: security.dir: {exc}") from None
+
+    def security_dir(self) -> Path | None:
+        """The key directory (``[security] dir``), or ``None`` when the links are not secured."""
+        d = self.config.security.dir
+        return self.resolve(d) if d else None
+
+    def signing_key(self, agent_id: int) -> bytes | None:
+        """Agent ``agent_id``'s MAVLink signing key, ``None`` without ``[security]``;
+        :class:`ConfigError` (one line) if the key file is missing or malformed."""
+        d = self.security_dir()
+        if d is None:
+            return None
+        from messages.fleetkeys import KeyStoreError, load_signing_key
+
+        try:
+            return load_signing_key(d, agent_id)
+        except KeyStoreError as exc:
+            raise ConfigError(f"{self.path}: security.dir: {exc}") from None
 
     def resolve(self, name: str) -> Path:
         """A file named in the fleet file, relative to the fleet file's directory."""
@@ -327,6 +370,11 @@ def load_fleet(path: str | Path) -> Fleet:
     if not 0.0 < cam.attitude_rate_hz <= 1000.0:
         raise ConfigError(
             f"{path}: camera.attitude_rate_hz: must be in (0, 1000], got {cam.attitude_rate_hz}"
+        )
+    if config.security.dir and not (path.parent / config.security.dir).is_dir():
+        raise ConfigError(
+            f"{path}: security.dir: {path.parent / config.security.dir} is not a directory "
+            "(bearingflock keys init DIR --fleet NAME --vehicles N)"
         )
     try:
         formation = load_formation(path.parent / config.formation)

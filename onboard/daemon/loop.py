@@ -34,7 +34,7 @@ from messages.command import FleetCommand
 from messages.limits import STAMP_FUTURE_MAX_S
 from messages.vocabulary import Alarm, alarm_text
 from onboard.agent import AgentConfig, AgentCore
-from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry
+from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
 from onboard.control.envelope import bound_down_velocity, bound_horizontal_velocity
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
@@ -314,6 +314,8 @@ class AgentDaemon:
         dropped = dict(self.drops.snapshot())
         for reason, count in self.core.dropped.items():
             dropped[f"core_{reason}"] = count
+        for reason, count in signing_rejections(tel.counters).items():
+            dropped[f"mavlink_{reason}"] = count
         speed = math.sqrt(sum(v * v for v in tel.v_ned))
         return VehicleStatus(
             sender=self.id,

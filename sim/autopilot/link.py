@@ -21,7 +21,8 @@ from dataclasses import dataclass, fields
 from types import ModuleType
 from typing import Any
 
-from sim.autopilot.signing import enable_signing, is_signed
+from messages.mavsign import SignatureVerifier, Verdict, keep_timestamp_current
+from sim.autopilot.signing import enable_signing
 
 PEER_TIMEOUT_S = 30.0
 """A learned UDP peer that stays silent this long (wall time) is no longer sent to."""
@@ -41,7 +42,14 @@ class LinkCounters:
     malformed: int = 0
     unknown_ids: int = 0
     unsigned_rejected: int = 0
+    """With signing on: unsigned messages not on the allow-list (dropped)."""
     bad_signature: int = 0
+    """With signing on: signed with another key, or altered (dropped before anything else)."""
+    replayed: int = 0
+    """With signing on: correct signature, timestamp not ahead of the stream's (dropped)."""
+    signed_ok: int = 0
+    unsigned_allowed: int = 0
+    """With signing on: unsigned RADIO_STATUS, ADSB_VEHICLE, COLLISION (accepted)."""
     foreign_target: int = 0
     nan_setpoints: int = 0
     ignored_setpoints: int = 0
@@ -61,7 +69,11 @@ class _Sink:
 
 
 class Codec:
-    """Pack and parse MAVLink 2 for one vehicle (system ``sys_id``, component 1)."""
+    """Pack and parse MAVLink 2 for one vehicle (system ``sys_id``, component 1).
+
+    With a signing key, one :class:`~messages.mavsign.SignatureVerifier` per vehicle (shared
+    by all its peers) decides on every parsed message; pymavlink's own check is never used.
+    """
 
     def __init__(
         self,
@@ -75,12 +87,19 @@ class Codec:
         self.counters = counters if counters is not None else LinkCounters()
         self.signing_key = signing_key
         self._tx = dialect.MAVLink(_Sink(), srcSystem=sys_id, srcComponent=comp_id)
+        self.verifier: SignatureVerifier | None = None
         if signing_key is not None:
             enable_signing(self._tx, signing_key)
+            self.verifier = SignatureVerifier(signing_key)
         self._parsers: dict[Any, Any] = {}
+        self.authenticated = False
+        """Whether the last :meth:`parse` returned a correctly signed message (or, without
+        signing, any valid one): only such a sender may become a peer."""
 
     def pack(self, msg: Any) -> bytes:
         """Serialize ``msg`` with this vehicle's identity and next sequence number."""
+        if self.verifier is not None:
+            keep_timestamp_current(self._tx)
         buf = msg.pack(self._tx)
         self._tx.seq = (self._tx.seq + 1) % 256
         self.counters.tx_packets += 1
@@ -89,10 +108,9 @@ class Codec:
     def _parser(self, peer: Any) -> Any:
         p = self._parsers.get(peer)
         if p is None:
+            # no key on the parser: it passes signed frames unchecked, the verifier decides
             p = self.dialect.MAVLink(_Sink(), srcSystem=self._tx.srcSystem, srcComponent=1)
             p.robust_parsing = True
-            if self.signing_key is not None:
-                enable_signing(p, self.signing_key)
             self._parsers[peer] = p
         return p
 
@@ -107,6 +125,7 @@ class Codec:
         """
         c = self.counters
         c.rx_bytes += len(data)
+        self.authenticated = False
         p = self._parser(peer)
         try:
             msgs = p.parse_buffer(data) or []
@@ -121,13 +140,32 @@ class Codec:
                 self._count_bad(m)
             elif kind.startswith("UNKNOWN_"):
                 c.unknown_ids += 1
-            else:
+            elif self._verified(m):
                 c.rx_packets += 1
                 good.append(m)
         if datagram and p.buf_len() > 0:
             c.garbage_bytes += p.buf_len()
             self._reset(p)
         return good
+
+    def _verified(self, m: Any) -> bool:
+        if self.verifier is None:
+            self.authenticated = True
+            return True
+        verdict = self.verifier.check_message(m)
+        c = self.counters
+        if verdict is Verdict.GOOD:
+            c.signed_ok += 1
+            self.authenticated = True
+        elif verdict is Verdict.ALLOWED_UNSIGNED:
+            c.unsigned_allowed += 1
+        elif verdict is Verdict.UNSIGNED:
+            c.unsigned_rejected += 1
+        elif verdict is Verdict.BAD_SIGNATURE:
+            c.bad_signature += 1
+        else:
+            c.replayed += 1
+        return verdict.accepted
 
     def _count_bad(self, m: Any) -> None:
         c = self.counters
@@ -136,11 +174,6 @@ class Codec:
             c.garbage_bytes += len(m.data)
         elif "CRC" in reason:
             c.bad_crc += 1
-        elif "signature" in reason:
-            if is_signed(m.data):
-                c.bad_signature += 1
-            else:
-                c.unsigned_rejected += 1
         else:
             c.malformed += 1
 
@@ -200,7 +233,7 @@ class UdpLink:
             except OSError:  # e.g. ICMP port unreachable reported on a later recv
                 continue
             msgs = self.codec.parse(addr, data, datagram=True)
-            if msgs:
+            if self.codec.authenticated:  # never an unsigned or forged sender
                 self.peers[addr] = self._clock()
             for m in msgs:
                 self.on_message(m)

@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 
 from groundstation.demo import DemoPorts, Evaluator, Processes, plan_formation, write_demo_files
-from messages.transport import ZenohSettings, loopback_endpoint
+from messages.fleetkeys import GCS_NAME, identity_files, identity_fleet
+from messages.transport import ZenohSettings, loopback_endpoint, with_mutual_tls
+from messages.zenoh_acl import fleet_access_control
 from sim.server import free_port_base
 
 N = 3
@@ -29,14 +31,22 @@ def _wait_for(predicate, timeout_s: float, what: str, ev: Evaluator | None = Non
 
 
 @contextmanager
-def running_fleet(tmp_path: Path, extra_fleet_toml: str = "") -> Iterator[tuple]:
+def running_fleet(
+    tmp_path: Path, extra_fleet_toml: str = "", keys: Path | None = None
+) -> Iterator[tuple]:
     """The simulator and N daemons as processes (the demo's files, ``extra_fleet_toml``
-    appended to the fleet file); yields ``(evaluator, processes, ports, agent_args, fleet)``."""
+    appended to the fleet file); yields ``(evaluator, processes, ports, agent_args, fleet)``.
+
+    ``keys``: a ``bearingflock keys init`` directory inside ``tmp_path``: the fleet file's
+    ``[security] dir``, the simulator's ``--keys``, and the evaluator joins Zenoh over mutual
+    TLS as the ground station."""
     base = free_port_base(N + 2, span=60)
     ports = DemoPorts(zenoh=base, mavlink=base + 10 + N, gcs=base + 9)
     plan = plan_formation(N, seed=1)
     name = f"t{base}"
     fleet_path = write_demo_files(tmp_path, plan, ports, name, "formation-active")
+    if keys is not None:
+        extra_fleet_toml += f'\n[security]\ndir = "{keys.relative_to(tmp_path)}"\n'
     if extra_fleet_toml:
         with fleet_path.open("a") as f:
             f.write(extra_fleet_toml)
@@ -48,6 +58,7 @@ def running_fleet(tmp_path: Path, extra_fleet_toml: str = "") -> Iterator[tuple]
             "--zenoh", loopback_endpoint(ports.zenoh), "--fleet", name,
             "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
             "--bind-base", str(ports.mavlink + N + 5), "--camera-fov", "360", "--quiet",
+            *(["--keys", str(keys)] if keys is not None else []),
         ],
     )  # fmt: skip
     agent_args = {
@@ -56,11 +67,11 @@ def running_fleet(tmp_path: Path, extra_fleet_toml: str = "") -> Iterator[tuple]
     }
     for i, args in agent_args.items():
         procs.start(f"agent{i}", args)
-    ev = Evaluator(
-        name,
-        plan,
-        ZenohSettings(connect=[loopback_endpoint(ports.zenoh + k) for k in range(N + 1)]),
-    )
+    settings = ZenohSettings(connect=[loopback_endpoint(ports.zenoh + k) for k in range(N + 1)])
+    if keys is not None:
+        acl = fleet_access_control(name, N, identity_fleet(keys))
+        settings = with_mutual_tls(settings, *identity_files(keys, GCS_NAME), acl)
+    ev = Evaluator(name, plan, settings)
     try:
         yield ev, procs, ports, agent_args, name
     finally:

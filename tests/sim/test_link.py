@@ -154,7 +154,10 @@ def test_signing_rejects_unsigned_and_wrongly_signed_commands():
         c.send(arm)
         ack = c.recv_until("COMMAND_ACK")
         assert ack.result == 0 and srv.autopilots[0].armed
-        c.send(common.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3))  # allowed unsigned anyway
+        c.mav = common.MAVLink(None, srcSystem=245, srcComponent=190)  # unsigned again
+        c.send(common.MAVLink_radio_status_message(200, 180, 90, 10, 5, 0, 0))  # allow-listed
+        c.send(common.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3))  # not (PX4's list)
+        _wait(lambda: counters.unsigned_allowed == 1 and counters.unsigned_rejected == 2)
     finally:
         c.close()
         srv.stop()
