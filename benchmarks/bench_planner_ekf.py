@@ -147,7 +147,7 @@ def validate_cell(
     same random draws.
     """
     waypoints = np.asarray(MISSIONS[name])
-    mission = Mission(waypoints, speed_mps=SPEED_MPS, rounds=ROUNDS)
+    mission = Mission(waypoints, speed_m_s=SPEED_MPS, rounds=ROUNDS)
     problem = make_problem(
         waypoints, m, sigma_m, PRIOR_COV, R_MIN_M, R_MAX_M, fov_deg=fov_deg, ground_down_m=0.0
     )
@@ -155,7 +155,7 @@ def validate_cell(
     base = OdometryNoise()
     noise = replace(
         base,
-        white_mps=base.white_mps * odometry_scale,
+        white_m_s=base.white_m_s * odometry_scale,
         bias_walk_mps_per_sqrt_s=base.bias_walk_mps_per_sqrt_s * odometry_scale,
     )
     rows: dict[str, list[tuple[float, float]]] = {"planned": [], "random": [], "none": []}

@@ -40,7 +40,7 @@ def synthetic(n: int, seconds: float) -> list[tuple[str, bytes, float]]:
             pre = f"bf/alpha/{i}"
             out.append((f"{pre}/truth", encode(Truth(sender=i, seq=k, stamp_s=t,
                         p_ned=(1.0 * i, t, -5.0), v_ned=(0.0, 1.0, 0.1), yaw_rad=0.1 * i,
-                        yaw_rate_radps=0.01)), t))  # fmt: skip
+                        yaw_rate_rad_s=0.01)), t))  # fmt: skip
             out.append((f"{pre}/peer/motion", encode(MotionShare(sender=i, seq=k, stamp_s=t,
                         v_body=(1.0, 0.2, 0.0), yaw_rate_rad_s=0.01, yaw_rad=t)), t))  # fmt: skip
             if k % 5 == 0:

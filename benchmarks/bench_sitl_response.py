@@ -195,7 +195,7 @@ def response_builtin(
     )
     rec = Recorder()
     server.hooks.append(
-        lambda t, w: rec.add(t, w.p_ned[0], w.v_ned[0], w.yaw_rad[0], w.yaw_rate_radps[0])
+        lambda t, w: rec.add(t, w.p_ned[0], w.v_ned[0], w.yaw_rad[0], w.yaw_rate_rad_s[0])
     )
     server.start()
     try:
@@ -224,7 +224,7 @@ def response_sitl(
         b = bridge
         b.hooks.append(
             lambda f: rec.add(
-                f.stamps_s[0], f.p_ned[0], f.v_ned[0], f.yaw_rad[0], f.yaw_rate_radps[0]
+                f.stamps_s[0], f.p_ned[0], f.v_ned[0], f.yaw_rad[0], f.yaw_rate_rad_s[0]
             )
         )
         b.connect()
@@ -357,7 +357,7 @@ def team_run(
             except MessageError:
                 return
             truth.append((tr.stamp_s, tr.sender, *tr.p_ned, *tr.v_ned, tr.yaw_rad,
-                          tr.yaw_rate_radps))  # fmt: skip
+                          tr.yaw_rate_rad_s))  # fmt: skip
 
         truth_sub = ev.session.declare_subscriber(f"bf/{fleet}/*/truth", on_truth)
         t0 = None

@@ -26,8 +26,11 @@ import numpy.typing as npt
 
 from messages.limits import ARRAY_ABS_MAX, AgentId, Seq, Stamp
 
-SCHEMA_VERSION = 2
-"""2: :class:`messages.rigidity.RigidityEigenShare` carries its vectors as :data:`F64Array`."""
+SCHEMA_VERSION = 3
+"""2: :class:`messages.rigidity.RigidityEigenShare` carries its vectors as :data:`F64Array`.
+3: one unit-suffix dialect (``_m_s``, ``_rad_s``): :class:`messages.sim.Truth` has
+``yaw_rate_rad_s`` (was ``yaw_rate_radps``); every payload is bounded by
+:mod:`messages.limits`."""
 MAX_PAYLOAD_BYTES = 1 << 20
 """Larger payloads are rejected before decoding (1 MiB; images are the largest legitimate ones)."""
 

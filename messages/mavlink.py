@@ -103,15 +103,15 @@ MASK_VELOCITY_YAW = IGNORE_POSITION | IGNORE_ACCEL | IGNORE_YAW_RATE
 class VelocitySetpoint:
     """What a ``SET_POSITION_TARGET_LOCAL_NED`` asks of a velocity-controlled vehicle.
 
-    ``v_mps`` is in the message's frame (NED for frames 1/7, heading frame for 8/9);
-    ``yaw_rad`` / ``yaw_rate_radps`` is ``None`` when its mask bit says to ignore it.
+    ``v_m_s`` is in the message's frame (NED for frames 1/7, heading frame for 8/9);
+    ``yaw_rad`` / ``yaw_rate_rad_s`` is ``None`` when its mask bit says to ignore it.
     ``stop`` is True when a used field is NaN or infinite: autopilots treat that as "stop".
     """
 
     frame: int
-    v_mps: tuple[float, float, float]
+    v_m_s: tuple[float, float, float]
     yaw_rad: float | None
-    yaw_rate_radps: float | None
+    yaw_rate_rad_s: float | None
     stop: bool
 
     @property
@@ -131,26 +131,26 @@ def is_velocity_mask(type_mask: int) -> bool:
 def velocity_setpoint(
     frame: int,
     type_mask: int,
-    v_mps: tuple[float, float, float],
+    v_m_s: tuple[float, float, float],
     yaw_rad: float,
-    yaw_rate_radps: float,
+    yaw_rate_rad_s: float,
 ) -> VelocitySetpoint | None:
     """Interpret a velocity setpoint; ``None`` if the mask is not velocity-only."""
     if not is_velocity_mask(type_mask):
         return None
     use_yaw = not type_mask & IGNORE_YAW
     use_rate = not type_mask & IGNORE_YAW_RATE
-    used = [*v_mps]
+    used = [*v_m_s]
     if use_yaw:
         used.append(yaw_rad)
     if use_rate:
-        used.append(yaw_rate_radps)
+        used.append(yaw_rate_rad_s)
     stop = not all(math.isfinite(x) for x in used)
     return VelocitySetpoint(
         frame=frame,
-        v_mps=(float(v_mps[0]), float(v_mps[1]), float(v_mps[2])),
+        v_m_s=(float(v_m_s[0]), float(v_m_s[1]), float(v_m_s[2])),
         yaw_rad=float(yaw_rad) if use_yaw else None,
-        yaw_rate_radps=float(yaw_rate_radps) if use_rate else None,
+        yaw_rate_rad_s=float(yaw_rate_rad_s) if use_rate else None,
         stop=stop,
     )
 

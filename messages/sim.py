@@ -52,7 +52,7 @@ class Truth(Payload, tag="truth"):
     p_ned: PositionVec3
     v_ned: SpeedVec3
     yaw_rad: Angle
-    yaw_rate_radps: Rate
+    yaw_rate_rad_s: Rate
 
 
 class SimClock(Payload, tag="sim_clock"):

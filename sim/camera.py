@@ -144,7 +144,7 @@ class CameraPublisher:
                             p_ned=tuple(world.p_ned[i].tolist()),
                             v_ned=tuple(world.v_ned[i].tolist()),
                             yaw_rad=float(world.yaw_rad[i]),
-                            yaw_rate_radps=float(world.yaw_rate_radps[i]),
+                            yaw_rate_rad_s=float(world.yaw_rate_rad_s[i]),
                         ),
                     )
                 )

@@ -306,7 +306,7 @@ def sim(
             cameras, specs, render = rig
             images = ImagePublisher(
                 cameras, specs, render, fleet, publisher_put(session), ids=ids,
-                wind_ned=config.noise.wind_ned_mps,
+                wind_ned=config.noise.wind_ned_m_s,
             )  # fmt: skip
             server.hooks.append(images)
         if lockstep:

@@ -55,7 +55,7 @@ class RealisticConfig:
 
     cmd_delay_s: float = 0.12
     """Dead time between a velocity or yaw-rate command and the start of the response."""
-    v_omega_radps: float = 1.0
+    v_omega_rad_s: float = 1.0
     """Natural frequency of the shaped horizontal velocity reference."""
     v_zeta: float = 0.56
     """Damping ratio of the shaped velocity reference."""
@@ -71,7 +71,7 @@ class RealisticConfig:
     """Time constant of the attitude loop that leans the thrust (acceleration follows it)."""
     lean_max_rad: float = math.radians(30.0)
     """Largest lean angle: the horizontal acceleration is at most ``g tan(lean_max)``."""
-    yaw_omega_radps: float = 6.0
+    yaw_omega_rad_s: float = 6.0
     yaw_zeta: float = 0.43
     """Shaped yaw-rate reference (no lead)."""
     yaw_cmd_delay_s: float = 0.06
@@ -84,9 +84,9 @@ class RealisticConfig:
     report_delay_s: float = 0.0
     """Stamping delay: reported state is the true state this long ago, stamped now (SITL's
     LOCAL_POSITION_NED velocity: none measurable, so 0)."""
-    vel_noise_std_mps: float = 0.02
+    vel_noise_std_m_s: float = 0.02
     """White noise on each axis of the reported velocity."""
-    vel_bias_std_mps: float = 0.03
+    vel_bias_std_m_s: float = 0.03
     """Stationary std of each horizontal heading-frame axis of the reported velocity's bias."""
     vel_bias_tau_s: float = 300.0
     """Correlation time of the velocity bias (constant over a mission, different per vehicle)."""
@@ -100,15 +100,15 @@ class RealisticConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        positive = ("v_omega_radps", "v_zeta", "vz_tau_s", "k_v_per_s", "tau_att_s",
-                    "lean_max_rad", "yaw_omega_radps", "yaw_zeta", "wander_tau_s",
+        positive = ("v_omega_rad_s", "v_zeta", "vz_tau_s", "k_v_per_s", "tau_att_s",
+                    "lean_max_rad", "yaw_omega_rad_s", "yaw_zeta", "wander_tau_s",
                     "vel_bias_tau_s", "yaw_bias_tau_s")  # fmt: skip
         for name in positive:
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"RealisticConfig.{name} must be > 0, got {getattr(self, name)}")
         non_negative = ("cmd_delay_s", "yaw_cmd_delay_s", "wander_accel_std_mps2",
-                        "wander_z_ratio", "report_delay_s", "vel_noise_std_mps",
-                        "vel_bias_std_mps", "att_noise_std_rad", "yaw_bias_std_rad")  # fmt: skip
+                        "wander_z_ratio", "report_delay_s", "vel_noise_std_m_s",
+                        "vel_bias_std_m_s", "att_noise_std_rad", "yaw_bias_std_rad")  # fmt: skip
         for name in non_negative:
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"RealisticConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -163,7 +163,7 @@ def initial_state(n: int, cfg: RealisticConfig, dt_s: float, p_ned: FloatArray,
         r_ref_rate=np.zeros(n),
         disturbance=rng.normal(0.0, 1.0, (n, 3)) * wander_std(cfg),
         vel_bias_heading=np.concatenate(
-            [rng.normal(0.0, cfg.vel_bias_std_mps, (n, 2)), np.zeros((n, 1))], axis=1
+            [rng.normal(0.0, cfg.vel_bias_std_m_s, (n, 2)), np.zeros((n, 1))], axis=1
         ),
         yaw_bias_rad=rng.normal(0.0, cfg.yaw_bias_std_rad, n),
         pos_drift_ned=np.zeros((n, 3)),
@@ -260,8 +260,8 @@ def step_metrics(t_s: np.ndarray, y: np.ndarray, t_step_s: float, target: float)
     }
 
 
-def step_response(cfg: RealisticConfig, dt_s: float, duration_s: float, v_step_mps: float = 1.0,
-                  r_step_radps: float = 0.0,
+def step_response(cfg: RealisticConfig, dt_s: float, duration_s: float, v_step_m_s: float = 1.0,
+                  r_step_rad_s: float = 0.0,
                   wander: bool = False) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
     """One vehicle, a step of the body-x velocity (and the yaw rate) at ``t = 0`` from hover:
     ``(t, v_ned (k, 3), yaw_rate (k,))`` of the truth (for fitting and tests)."""
@@ -269,11 +269,11 @@ def step_response(cfg: RealisticConfig, dt_s: float, duration_s: float, v_step_m
     if not wander:
         st.disturbance[:] = 0.0
     v, a, r = np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1)
-    cmd = np.array([[v_step_mps, 0.0, 0.0]])
+    cmd = np.array([[v_step_m_s, 0.0, 0.0]])
     steps = round(duration_s / dt_s)
     ts, vs, rs = np.zeros(steps), np.zeros((steps, 3)), np.zeros(steps)
     for k in range(steps):
-        v, a, r = advance(st, v, a, r, cmd, np.array([r_step_radps]), dt_s, cfg, wander)
+        v, a, r = advance(st, v, a, r, cmd, np.array([r_step_rad_s]), dt_s, cfg, wander)
         ts[k], vs[k], rs[k] = (k + 1) * dt_s, v[0], r[0]
     return ts, vs, rs
 
@@ -293,14 +293,14 @@ def advance(st: RealisticState, v_ned: FloatArray, a_ned: FloatArray, yaw_rate: 
         v_cmd_d = v_cmd_d.copy()
         v_cmd_d[direct] = v_cmd_ned[direct]
     y_rate_old = st.y_rate
-    st.y, st.y_rate = shaped_step(st.y, st.y_rate, v_cmd_d, cfg.v_omega_radps, cfg.v_zeta, dt_s)
+    st.y, st.y_rate = shaped_step(st.y, st.y_rate, v_cmd_d, cfg.v_omega_rad_s, cfg.v_zeta, dt_s)
     v_ref = st.y + cfg.v_lead_s * st.y_rate
     st.v_ref_rate = st.y_rate + cfg.v_lead_s * (st.y_rate - y_rate_old) / dt_s
     st.v_ref = v_ref
     st.v_ref[:, 2], st.v_ref_rate[:, 2] = v_cmd_d[:, 2], 0.0
     if direct is not None and direct.any():
         st.v_ref[direct], st.v_ref_rate[direct] = v_cmd_ned[direct], 0.0
-    st.r_ref, st.r_ref_rate = shaped_step(st.r_ref, st.r_ref_rate, r_cmd_d, cfg.yaw_omega_radps,
+    st.r_ref, st.r_ref_rate = shaped_step(st.r_ref, st.r_ref_rate, r_cmd_d, cfg.yaw_omega_rad_s,
                                           cfg.yaw_zeta, dt_s)  # fmt: skip
     if wander:
         st.disturbance = ou_step(st.disturbance, wander_std(cfg), cfg.wander_tau_s, dt_s,
@@ -316,7 +316,7 @@ def update_report_state(st: RealisticState, p_ned: FloatArray, v_ned: FloatArray
     true state into the stamping-delay history."""
     n = p_ned.shape[0]
     white = st.rng.standard_normal((n, 3))
-    st.vel_bias_heading[:, :2] = ou_step(st.vel_bias_heading[:, :2], cfg.vel_bias_std_mps,
+    st.vel_bias_heading[:, :2] = ou_step(st.vel_bias_heading[:, :2], cfg.vel_bias_std_m_s,
                                          cfg.vel_bias_tau_s, dt_s, white[:, :2])  # fmt: skip
     st.yaw_bias_rad = ou_step(st.yaw_bias_rad, cfg.yaw_bias_std_rad, cfg.yaw_bias_tau_s, dt_s,
                               white[:, 2])  # fmt: skip
@@ -336,7 +336,7 @@ def report(st: RealisticState, cfg: RealisticConfig,
     n = old.shape[0]
     p, v, yaw, rate = old[:, 0:3], old[:, 3:6], old[:, 6], old[:, 7]
     v_rep = reported_velocity(v, yaw, st.vel_bias_heading,
-                              rng.normal(0.0, cfg.vel_noise_std_mps, (n, 3)))  # fmt: skip
+                              rng.normal(0.0, cfg.vel_noise_std_m_s, (n, 3)))  # fmt: skip
     p_rep = p + st.pos_drift_ned
     att = rng.normal(0.0, cfg.att_noise_std_rad, (3, n))
     att[2] += st.yaw_bias_rad + cfg.yaw_offset_rad

@@ -102,7 +102,7 @@ class VehicleTruth:
     p_ned: FloatArray = field(default_factory=lambda: np.zeros(3))
     v_ned: FloatArray = field(default_factory=lambda: np.zeros(3))
     yaw_rad: float = 0.0
-    yaw_rate_radps: float = 0.0
+    yaw_rate_rad_s: float = 0.0
     boot_s: float | None = None
     """``time_boot_ms`` of the newest SYSTEM_TIME ..."""
     boot_wall_s: float = 0.0
@@ -136,7 +136,7 @@ class SitlFrame:
     p_ned: FloatArray
     yaw_rad: FloatArray
     v_ned: FloatArray
-    yaw_rate_radps: FloatArray
+    yaw_rate_rad_s: FloatArray
 
     @property
     def n(self) -> int:
@@ -270,7 +270,7 @@ class SitlBridge:
             if not (np.all(np.isfinite(p)) and np.all(np.isfinite(v)) and math.isfinite(rate)):
                 self.counters["bad_data"] += 1
                 return
-            vt.t_s, vt.p_ned, vt.v_ned, vt.yaw_rad, vt.yaw_rate_radps = t, p, v, yaw, rate
+            vt.t_s, vt.p_ned, vt.v_ned, vt.yaw_rad, vt.yaw_rate_rad_s = t, p, v, yaw, rate
             vt.samples += 1
             self.counters["sim_state"] += 1
         elif kind == "HEARTBEAT" and msg.autopilot == mv.MAV_AUTOPILOT_ARDUPILOTMEGA:
@@ -300,8 +300,8 @@ class SitlBridge:
             dt = min(MAX_EXTRAPOLATION_S, max(-MAX_EXTRAPOLATION_S, float(t_k) - vt.t_s))
             p.append(vt.p_ned + vt.v_ned * dt)
             v.append(vt.v_ned)
-            yaw.append(math.remainder(vt.yaw_rad + vt.yaw_rate_radps * dt, math.tau))
-            rate.append(vt.yaw_rate_radps)
+            yaw.append(math.remainder(vt.yaw_rad + vt.yaw_rate_rad_s * dt, math.tau))
+            rate.append(vt.yaw_rate_rad_s)
         return SitlFrame(
             float(clocks.min()), clocks, np.array(p), np.array(yaw), np.array(v), np.array(rate)
         )
@@ -414,7 +414,7 @@ class SitlPublisher:
                     sender=ids[i], seq=self.seq, stamp_s=stamp,
                     p_ned=tuple(frame.p_ned[i].tolist()), v_ned=tuple(frame.v_ned[i].tolist()),
                     yaw_rad=float(frame.yaw_rad[i]),
-                    yaw_rate_radps=float(frame.yaw_rate_radps[i]),
+                    yaw_rate_rad_s=float(frame.yaw_rate_rad_s[i]),
                 ),
             ))  # fmt: skip
         return out

@@ -1,7 +1,7 @@
 """The kinematic world: N multicopters that track velocity and yaw-rate commands.
 
 Each vehicle has a position ``p_ned`` (m), a yaw ``yaw_rad`` and the velocity ``v_ned`` (m/s)
-and yaw rate ``yaw_rate_radps`` it actually flies. Its autopilot gives it, per vehicle, either
+and yaw rate ``yaw_rate_rad_s`` it actually flies. Its autopilot gives it, per vehicle, either
 
 * a velocity command ``v_cmd`` in NED or in the heading frame (``cmd_body``; then the world
   rotates it by the current yaw at every step, the agent model ``pdot = R_z(psi) u`` of
@@ -58,18 +58,18 @@ class DynamicsConfig:
     accel_max_mps2: float = 4.0
     """Limit on the norm of the acceleration."""
     yaw_acc_max_radps2: float = math.radians(360.0)
-    v_max_xy_mps: float = 12.0
+    v_max_xy_m_s: float = 12.0
     """Absolute limit on commanded horizontal speed (``MPC_XY_VEL_MAX``)."""
-    v_max_up_mps: float = 3.0
-    v_max_down_mps: float = 1.5
-    yaw_rate_max_radps: float = math.radians(200.0)
+    v_max_up_m_s: float = 3.0
+    v_max_down_m_s: float = 1.5
+    yaw_rate_max_rad_s: float = math.radians(200.0)
     k_hold_per_s: float = 1.0
     """Gain of the position-hold law."""
-    hold_max_xy_mps: float = 5.0
+    hold_max_xy_m_s: float = 5.0
     """Horizontal speed limit while holding/flying to a position (``MPC_XY_CRUISE``)."""
-    hold_max_up_mps: float = 1.5
+    hold_max_up_m_s: float = 1.5
     """Climb speed while holding/taking off (``MPC_TKO_SPEED``)."""
-    hold_max_down_mps: float = 0.7
+    hold_max_down_m_s: float = 0.7
     """Descent speed while holding/landing (``MPC_LAND_SPEED``)."""
     k_yaw_per_s: float = 2.0
     """Gain of the yaw-hold law."""
@@ -86,9 +86,9 @@ class DynamicsConfig:
 class SensorNoise:
     """Optional noise on what the autopilots report (truth stays exact). ``seed`` fixes it."""
 
-    velocity_std_mps: float = 0.0
+    velocity_std_m_s: float = 0.0
     attitude_std_rad: float = 0.0
-    wind_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Constant wind: the reported attitude leans into it (truth motion is unaffected, as if
     the position controller compensated it perfectly)."""
     seed: int = 0
@@ -108,11 +108,11 @@ class World:
     """Step the realistic model's delay lines are sized for (:meth:`step` takes any ``dt``)."""
     rstate: rd.RealisticState | None = field(init=False, default=None)
     v_ned: FloatArray = field(init=False)
-    yaw_rate_radps: FloatArray = field(init=False)
+    yaw_rate_rad_s: FloatArray = field(init=False)
     a_ned: FloatArray = field(init=False)
     v_cmd: FloatArray = field(init=False)
     cmd_body: np.ndarray = field(init=False)
-    yaw_rate_cmd_radps: FloatArray = field(init=False)
+    yaw_rate_cmd_rad_s: FloatArray = field(init=False)
     hold_ned: FloatArray = field(init=False)
     hold_active: np.ndarray = field(init=False)
     yaw_hold_rad: FloatArray = field(init=False)
@@ -126,11 +126,11 @@ class World:
             raise ValueError("initial positions and yaws must be finite")
         self.p_ned[:, 2] = np.minimum(self.p_ned[:, 2], 0.0)
         self.v_ned = np.zeros((n, 3))
-        self.yaw_rate_radps = np.zeros(n)
+        self.yaw_rate_rad_s = np.zeros(n)
         self.a_ned = np.zeros((n, 3))
         self.v_cmd = np.zeros((n, 3))
         self.cmd_body = np.zeros(n, dtype=bool)
-        self.yaw_rate_cmd_radps = np.zeros(n)
+        self.yaw_rate_cmd_rad_s = np.zeros(n)
         self.hold_ned = self.p_ned.copy()
         self.hold_active = np.zeros(n, dtype=bool)
         self.yaw_hold_rad = self.yaw_rad.copy()
@@ -154,8 +154,8 @@ class World:
         self.hold_ned[i] = p_ned
         self.hold_active[i] = True
 
-    def command_yaw_rate(self, i: int, yaw_rate_radps: float) -> None:
-        self.yaw_rate_cmd_radps[i] = yaw_rate_radps
+    def command_yaw_rate(self, i: int, yaw_rate_rad_s: float) -> None:
+        self.yaw_rate_cmd_rad_s[i] = yaw_rate_rad_s
         self.yaw_hold_active[i] = False
 
     def command_yaw(self, i: int, yaw_rad: float) -> None:
@@ -180,14 +180,14 @@ class World:
         )
         r_cmd = commanded_yaw_rate(
             self.yaw_rad,
-            self.yaw_rate_cmd_radps,
+            self.yaw_rate_cmd_rad_s,
             self.yaw_hold_rad,
             self.yaw_hold_active,
             self.config,
         )
         if self.rstate is None:
             a, v_new, r_new = lag_step(
-                self.v_ned, self.yaw_rate_radps, v_cmd, r_cmd, dt_s, self.config
+                self.v_ned, self.yaw_rate_rad_s, v_cmd, r_cmd, dt_s, self.config
             )
         else:
             a, v_new, r_new = self._realistic_step(v_cmd, r_cmd, dt_s)
@@ -196,13 +196,13 @@ class World:
         a[resting] = 0.0
         self.a_ned = a
         p_new = self.p_ned + 0.5 * (self.v_ned + v_new) * dt_s
-        self.yaw_rad = wrap_angle(self.yaw_rad + 0.5 * (self.yaw_rate_radps + r_new) * dt_s)
+        self.yaw_rad = wrap_angle(self.yaw_rad + 0.5 * (self.yaw_rate_rad_s + r_new) * dt_s)
         self.p_ned, self.v_ned = ground_contact(p_new, v_new)
-        self.yaw_rate_radps = r_new
+        self.yaw_rate_rad_s = r_new
         self.t_s += dt_s
         if self.rstate is not None and self.realistic is not None:
             rd.update_report_state(self.rstate, self.p_ned, self.v_ned, self.yaw_rad,
-                                   self.yaw_rate_radps, self.a_ned, dt_s, self.realistic)  # fmt: skip
+                                   self.yaw_rate_rad_s, self.a_ned, dt_s, self.realistic)  # fmt: skip
 
     def _realistic_step(
         self, v_cmd: FloatArray, r_cmd: FloatArray, dt_s: float
@@ -211,12 +211,12 @@ class World:
         shaped reference, holds straight into the tilt loop; on the ground no wander."""
         st, cfg = self.rstate, self.realistic
         assert st is not None and cfg is not None
-        v_old, r_old = self.v_ned.copy(), self.yaw_rate_radps.copy()
+        v_old, r_old = self.v_ned.copy(), self.yaw_rate_rad_s.copy()
         # the autopilot flies its own estimate: its velocity loop brings the *reported*
         # velocity (truth + bias) to the command, so the truth flies the command minus the bias
         v_cmd = v_cmd - np.einsum("nij,nj->ni", rot_z(self.yaw_rad), st.vel_bias_heading)
         # position holds: the ideal law's velocity, flown by the tilt loop
-        v, a, r = rd.advance(st, self.v_ned, self.a_ned, self.yaw_rate_radps, v_cmd, r_cmd,
+        v, a, r = rd.advance(st, self.v_ned, self.a_ned, self.yaw_rate_rad_s, v_cmd, r_cmd,
                              dt_s, cfg, direct=self.hold_active)  # fmt: skip
         yaw_hold = self.yaw_hold_active
         if yaw_hold.any():
@@ -241,33 +241,33 @@ def commanded_velocity(
     v_body_rotated = np.einsum("nij,nj->ni", rot_z(yaw_rad), v_cmd)
     v = np.where(cmd_body[:, None], v_body_rotated, v_cmd)
     v_hold = cfg.k_hold_per_s * (hold_ned - p_ned)
-    v_hold[:, :2] = _saturate_norm(v_hold[:, :2], cfg.hold_max_xy_mps)
-    v_hold[:, 2] = np.clip(v_hold[:, 2], -cfg.hold_max_up_mps, cfg.hold_max_down_mps)
+    v_hold[:, :2] = _saturate_norm(v_hold[:, :2], cfg.hold_max_xy_m_s)
+    v_hold[:, 2] = np.clip(v_hold[:, 2], -cfg.hold_max_up_m_s, cfg.hold_max_down_m_s)
     v = np.where(hold_active[:, None], v_hold, v)
-    v[:, :2] = _saturate_norm(v[:, :2], cfg.v_max_xy_mps)
-    v[:, 2] = np.clip(v[:, 2], -cfg.v_max_up_mps, cfg.v_max_down_mps)
+    v[:, :2] = _saturate_norm(v[:, :2], cfg.v_max_xy_m_s)
+    v[:, 2] = np.clip(v[:, 2], -cfg.v_max_up_m_s, cfg.v_max_down_m_s)
     return v
 
 
 def commanded_yaw_rate(
     yaw_rad: FloatArray,
-    yaw_rate_cmd_radps: FloatArray,
+    yaw_rate_cmd_rad_s: FloatArray,
     yaw_hold_rad: FloatArray,
     yaw_hold_active: np.ndarray,
     cfg: DynamicsConfig,
 ) -> FloatArray:
     """Yaw rate each vehicle is asked to turn at: the command, or ``k_yaw`` times the yaw error."""
     r = np.where(
-        yaw_hold_active, cfg.k_yaw_per_s * wrap_angle(yaw_hold_rad - yaw_rad), yaw_rate_cmd_radps
+        yaw_hold_active, cfg.k_yaw_per_s * wrap_angle(yaw_hold_rad - yaw_rad), yaw_rate_cmd_rad_s
     )
-    return np.clip(r, -cfg.yaw_rate_max_radps, cfg.yaw_rate_max_radps)
+    return np.clip(r, -cfg.yaw_rate_max_rad_s, cfg.yaw_rate_max_rad_s)
 
 
 def lag_step(
     v_ned: FloatArray,
-    yaw_rate_radps: FloatArray,
+    yaw_rate_rad_s: FloatArray,
     v_cmd_ned: FloatArray,
-    yaw_rate_cmd_radps: FloatArray,
+    yaw_rate_cmd_rad_s: FloatArray,
     dt_s: float,
     cfg: DynamicsConfig,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -279,11 +279,11 @@ def lag_step(
     a = (v_cmd_ned - v_ned) / max(cfg.tau_v_s, dt_s)
     a = _saturate_norm(a, cfg.accel_max_mps2)
     r_dot = np.clip(
-        (yaw_rate_cmd_radps - yaw_rate_radps) / max(cfg.tau_yaw_s, dt_s),
+        (yaw_rate_cmd_rad_s - yaw_rate_rad_s) / max(cfg.tau_yaw_s, dt_s),
         -cfg.yaw_acc_max_radps2,
         cfg.yaw_acc_max_radps2,
     )
-    return a, v_ned + a * dt_s, yaw_rate_radps + r_dot * dt_s
+    return a, v_ned + a * dt_s, yaw_rate_rad_s + r_dot * dt_s
 
 
 def ground_contact(p_ned: FloatArray, v_ned: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -314,7 +314,7 @@ class Observation:
     roll_rad: FloatArray
     pitch_rad: FloatArray
     yaw_rad: FloatArray
-    yaw_rate_radps: FloatArray
+    yaw_rate_rad_s: FloatArray
 
 
 def tilt_from_specific_force(
@@ -341,26 +341,26 @@ def observe(world: World, noise: SensorNoise, rng: np.random.Generator) -> Obser
     if world.rstate is not None and world.realistic is not None:
         p, v_rep, a_old, yaw_t, rate, att = rd.report(world.rstate, world.realistic, rng)
         roll, pitch = tilt_from_specific_force(
-            a_old, v_rep, yaw_t, np.asarray(noise.wind_ned_mps, dtype=float),
+            a_old, v_rep, yaw_t, np.asarray(noise.wind_ned_m_s, dtype=float),
             world.config.drag_per_s,
         )  # fmt: skip
-        if noise.velocity_std_mps > 0.0:
-            v_rep = v_rep + rng.normal(0.0, noise.velocity_std_mps, size=(n, 3))
+        if noise.velocity_std_m_s > 0.0:
+            v_rep = v_rep + rng.normal(0.0, noise.velocity_std_m_s, size=(n, 3))
         return Observation(
             p_ned=p.copy(), v_ned=v_rep, roll_rad=roll + att[0], pitch_rad=pitch + att[1],
-            yaw_rad=wrap_angle(yaw_t + att[2]), yaw_rate_radps=rate.copy(),
+            yaw_rad=wrap_angle(yaw_t + att[2]), yaw_rate_rad_s=rate.copy(),
         )  # fmt: skip
     roll, pitch = tilt_from_specific_force(
         world.a_ned,
         world.v_ned,
         world.yaw_rad,
-        np.asarray(noise.wind_ned_mps, dtype=float),
+        np.asarray(noise.wind_ned_m_s, dtype=float),
         world.config.drag_per_s,
     )
     v = world.v_ned.copy()
     yaw = world.yaw_rad.copy()
-    if noise.velocity_std_mps > 0.0:
-        v += rng.normal(0.0, noise.velocity_std_mps, size=(n, 3))
+    if noise.velocity_std_m_s > 0.0:
+        v += rng.normal(0.0, noise.velocity_std_m_s, size=(n, 3))
     if noise.attitude_std_rad > 0.0:
         att = rng.normal(0.0, noise.attitude_std_rad, size=(3, n))
         roll, pitch, yaw = roll + att[0], pitch + att[1], wrap_angle(yaw + att[2])
@@ -370,7 +370,7 @@ def observe(world: World, noise: SensorNoise, rng: np.random.Generator) -> Obser
         roll_rad=roll,
         pitch_rad=pitch,
         yaw_rad=yaw,
-        yaw_rate_radps=world.yaw_rate_radps.copy(),
+        yaw_rate_rad_s=world.yaw_rate_rad_s.copy(),
     )
 
 

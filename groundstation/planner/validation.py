@@ -31,10 +31,10 @@ from onboard.geometry import FloatArray, IntArray
 
 @dataclass(frozen=True)
 class Mission:
-    """A closed loop of waypoints (NED, m) flown ``rounds`` times at ``speed_mps``."""
+    """A closed loop of waypoints (NED, m) flown ``rounds`` times at ``speed_m_s``."""
 
     waypoints_ned: FloatArray  # (K, 3)
-    speed_mps: float
+    speed_m_s: float
     rounds: int
     dt_s: float = 0.1
 
@@ -48,9 +48,9 @@ class OdometryNoise:
     over 1.0-1.4 km).
     """
 
-    bias0_mps: float = 0.04
+    bias0_m_s: float = 0.04
     bias_walk_mps_per_sqrt_s: float = 0.004
-    white_mps: float = 0.2
+    white_m_s: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ def fly_mission(mission: Mission) -> Flight:
     loop = np.vstack([w, w[:1]])
     seg = np.diff(loop, axis=0)
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
-    step_m = mission.speed_mps * mission.dt_s
+    step_m = mission.speed_m_s * mission.dt_s
     n_steps = round(mission.rounds * arc[-1] / step_m)
     s = (np.arange(n_steps + 1) * step_m) % arc[-1]
     k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(seg) - 1)
@@ -86,8 +86,8 @@ def simulate_odometry(flight: Flight, noise: OdometryNoise, rng: np.random.Gener
     dt = flight.dt_s
     v = np.diff(flight.p_ned, axis=0) / dt
     walk = noise.bias_walk_mps_per_sqrt_s * np.sqrt(dt) * rng.normal(size=v.shape)
-    bias = noise.bias0_mps * rng.normal(size=3) + np.cumsum(walk, axis=0)
-    return v + bias + noise.white_mps * rng.normal(size=v.shape)
+    bias = noise.bias0_m_s * rng.normal(size=3) + np.cumsum(walk, axis=0)
+    return v + bias + noise.white_m_s * rng.normal(size=v.shape)
 
 
 def simulate_bearings(
@@ -166,10 +166,10 @@ def ekf_track(
     eye3 = np.eye(3)
     f = np.block([[eye3, -dt_s * eye3], [np.zeros((3, 3)), eye3]])
     q = np.diag(
-        [(noise.white_mps * dt_s) ** 2] * 3 + [noise.bias_walk_mps_per_sqrt_s**2 * dt_s] * 3
+        [(noise.white_m_s * dt_s) ** 2] * 3 + [noise.bias_walk_mps_per_sqrt_s**2 * dt_s] * 3
     )
     x = np.concatenate([np.asarray(p0_ned, dtype=float), np.zeros(3)])
-    cov = np.diag([p0_sigma_m**2] * 3 + [noise.bias0_mps**2] * 3)
+    cov = np.diag([p0_sigma_m**2] * 3 + [noise.bias0_m_s**2] * 3)
     out = np.empty((v.shape[0] + 1, 3))
     out[0] = x[:3]
     for k in range(1, v.shape[0] + 1):

@@ -71,11 +71,11 @@ class LinkConfig:
 
     rate_hz: float = 20.0
     """Setpoint stream rate (wall clock)."""
-    max_speed_xy_mps: float = 2.0
+    max_speed_xy_m_s: float = 2.0
     """Saturation of the horizontal body velocity (norm)."""
-    max_speed_z_mps: float = 1.0
+    max_speed_z_m_s: float = 1.0
     """Saturation of the vertical body velocity."""
-    max_yaw_rate_radps: float = 0.8
+    max_yaw_rate_rad_s: float = 0.8
     """Saturation of the yaw rate."""
     setpoint_timeout_s: float = 0.5
     """While streaming, a setpoint older than this is replaced by zero velocity (hold)."""
@@ -112,9 +112,9 @@ class LinkConfig:
     def __post_init__(self) -> None:
         for name in (
             "rate_hz",
-            "max_speed_xy_mps",
-            "max_speed_z_mps",
-            "max_yaw_rate_radps",
+            "max_speed_xy_m_s",
+            "max_speed_z_m_s",
+            "max_yaw_rate_rad_s",
             "setpoint_timeout_s",
             "stale_after_s",
             "heartbeat_timeout_s",
@@ -196,7 +196,7 @@ class Telemetry:
     roll_rad: float
     pitch_rad: float
     yaw_rad: float
-    yaw_rate_radps: float
+    yaw_rate_rad_s: float
     v_ned: Vec3
     v_body: Vec3
     """Heading-frame velocity ``R_z(yaw)^T v_ned`` (module docstring)."""
@@ -223,7 +223,7 @@ class Telemetry:
     stream_state: StreamState
     setpoint_v_body: Vec3
     """The (saturated) setpoint being streamed."""
-    setpoint_yaw_rate_radps: float
+    setpoint_yaw_rate_rad_s: float
     counters: LinkCounters
 
     @property
@@ -385,7 +385,7 @@ class AutopilotLink(ABC):
 
     @abstractmethod
     def set_setpoint(
-        self, v_body: Vec3, yaw_rate_radps: float, source_t: float | None = None
+        self, v_body: Vec3, yaw_rate_rad_s: float, source_t: float | None = None
     ) -> tuple[Vec3, float]:
         """Store the command to stream; returns it saturated and NaN-free. ``source_t`` (link
         clock) is when the newest measurement it is based on was taken: each send then records

@@ -117,15 +117,15 @@ class LinkBookkeeping(AutopilotLink):
         )
 
     def set_setpoint(
-        self, v_body: Vec3, yaw_rate_radps: float, source_t: float | None = None
+        self, v_body: Vec3, yaw_rate_rad_s: float, source_t: float | None = None
     ) -> tuple[Vec3, float]:
         cfg = self.config
         sat = saturate_setpoint(
             v_body,
-            yaw_rate_radps,
-            cfg.max_speed_xy_mps,
-            cfg.max_speed_z_mps,
-            cfg.max_yaw_rate_radps,
+            yaw_rate_rad_s,
+            cfg.max_speed_xy_m_s,
+            cfg.max_speed_z_m_s,
+            cfg.max_yaw_rate_rad_s,
         )
         with self._cond:
             self._setpoint, self._t_setpoint = sat, self._clock()
@@ -135,7 +135,7 @@ class LinkBookkeeping(AutopilotLink):
             active = self._stream is not StreamState.IDLE
         if active:
             self._on_setpoint(sat)
-        return sat.v_body, sat.yaw_rate_radps
+        return sat.v_body, sat.yaw_rate_rad_s
 
     def _on_setpoint(self, sat: Saturated) -> None:
         """A new setpoint while streaming: backends that push setpoints on change do it here

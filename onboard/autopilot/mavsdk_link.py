@@ -258,7 +258,7 @@ class MavsdkLink(LinkBookkeeping):
     def _on_rates(self, w: Any) -> None:
         if not math.isfinite(w.yaw_rad_s):
             raise ValueError("non-finite yaw rate")
-        self._state.yaw_rate_radps = float(w.yaw_rad_s)
+        self._state.yaw_rate_rad_s = float(w.yaw_rad_s)
 
     def _on_position_velocity(self, pv: Any) -> None:
         v = (pv.velocity.north_m_s, pv.velocity.east_m_s, pv.velocity.down_m_s)
@@ -340,7 +340,7 @@ class MavsdkLink(LinkBookkeeping):
         off = self._offboard
         if off is None:
             return
-        v, r = sp.v_body, sp.yaw_rate_radps
+        v, r = sp.v_body, sp.yaw_rate_rad_s
         try:
             off.set_velocity_body(VelocityBodyYawspeed(v[0], v[1], v[2], math.degrees(r)))
             self._sent_setpoint = sp

@@ -384,7 +384,7 @@ class PymavlinkLink(LinkBookkeeping):
                 self._setpoint_stale = stale
             ts, tc = self._target
             source_t = self._source_t if sp is self._setpoint else None
-        v, r = sp.v_body, sp.yaw_rate_radps
+        v, r = sp.v_body, sp.yaw_rate_rad_s
         sent = self._send(
             lambda mav: mav.set_position_target_local_ned_send(
                 self._boot_ms(), ts, tc, mv.FRAME_BODY_NED, mv.MASK_VELOCITY_YAW_RATE,

@@ -130,7 +130,7 @@ class Saturated:
     """A setpoint after :func:`saturate_setpoint`."""
 
     v_body: Vec3
-    yaw_rate_radps: float
+    yaw_rate_rad_s: float
     non_finite: bool
     """The input had a NaN/inf: the output is a stop (zero velocity and yaw rate)."""
     clipped: bool
@@ -138,7 +138,7 @@ class Saturated:
 
 
 def saturate_setpoint(
-    v_body: Any, yaw_rate_radps: float, max_xy_mps: float, max_z_mps: float, max_rate_radps: float
+    v_body: Any, yaw_rate_rad_s: float, max_xy_m_s: float, max_z_m_s: float, max_rate_rad_s: float
 ) -> Saturated:
     """Limit the horizontal speed (norm, direction kept), the vertical speed and the yaw rate.
 
@@ -147,21 +147,21 @@ def saturate_setpoint(
     """
     try:
         v = np.asarray(v_body, dtype=float).reshape(3)
-        r = float(yaw_rate_radps)
+        r = float(yaw_rate_rad_s)
     except (TypeError, ValueError):
         return Saturated((0.0, 0.0, 0.0), 0.0, non_finite=True, clipped=False)
     if not (np.all(np.isfinite(v)) and math.isfinite(r)):
         return Saturated((0.0, 0.0, 0.0), 0.0, non_finite=True, clipped=False)
     clipped = False
     speed_xy = float(np.hypot(v[0], v[1]))
-    if speed_xy > max_xy_mps:
-        v[:2] *= max_xy_mps / speed_xy
+    if speed_xy > max_xy_m_s:
+        v[:2] *= max_xy_m_s / speed_xy
         clipped = True
-    if abs(v[2]) > max_z_mps:
-        v[2] = math.copysign(max_z_mps, v[2])
+    if abs(v[2]) > max_z_m_s:
+        v[2] = math.copysign(max_z_m_s, v[2])
         clipped = True
-    if abs(r) > max_rate_radps:
-        r = math.copysign(max_rate_radps, r)
+    if abs(r) > max_rate_rad_s:
+        r = math.copysign(max_rate_rad_s, r)
         clipped = True
     return Saturated((float(v[0]), float(v[1]), float(v[2])), r, non_finite=False, clipped=clipped)
 
@@ -245,7 +245,7 @@ class TelemetryState:
     roll_rad: float = 0.0
     pitch_rad: float = 0.0
     yaw_rad: float = 0.0
-    yaw_rate_radps: float = 0.0
+    yaw_rate_rad_s: float = 0.0
     v_ned: Vec3 = (0.0, 0.0, 0.0)
     altitude_m: float = 0.0
     north_m: float = 0.0
@@ -298,7 +298,7 @@ class TelemetryState:
         self.roll_rad = float(msg.roll)
         self.pitch_rad = float(msg.pitch)
         self.yaw_rad = float(msg.yaw)
-        self.yaw_rate_radps = float(msg.yawspeed)
+        self.yaw_rate_rad_s = float(msg.yawspeed)
         self.t_boot_s = self.t_boot_attitude_s = msg.time_boot_ms / 1000.0
 
     def _on_local_position_ned(self, msg: Any, now_s: float) -> None:
@@ -370,7 +370,7 @@ def snapshot(
         roll_rad=st.roll_rad,
         pitch_rad=st.pitch_rad,
         yaw_rad=st.yaw_rad,
-        yaw_rate_radps=st.yaw_rate_radps,
+        yaw_rate_rad_s=st.yaw_rate_rad_s,
         v_ned=st.v_ned,
         v_body=st.v_body(),
         altitude_m=st.altitude_m,
@@ -390,6 +390,6 @@ def snapshot(
         stale_velocity=vel_age > config.stale_after_s,
         stream_state=stream,
         setpoint_v_body=setpoint.v_body,
-        setpoint_yaw_rate_radps=setpoint.yaw_rate_radps,
+        setpoint_yaw_rate_rad_s=setpoint.yaw_rate_rad_s,
         counters=counters,
     )

@@ -152,9 +152,9 @@ def agent(
         backend or c.mavlink.backend,
         LinkConfig(
             rate_hz=c.rates.setpoint,
-            max_speed_xy_mps=c.limits.max_speed_m_s,
-            max_speed_z_mps=c.limits.max_speed_m_s,
-            max_yaw_rate_radps=c.limits.max_yaw_rate_rad_s,
+            max_speed_xy_m_s=c.limits.max_speed_m_s,
+            max_speed_z_m_s=c.limits.max_speed_m_s,
+            max_yaw_rate_rad_s=c.limits.max_yaw_rate_rad_s,
             heartbeat_timeout_s=LinkConfig.heartbeat_timeout_s * slowdown,
             stream_rates_hz=_stream_rates(bearings, c.camera.attitude_rate_hz),
             system_id=system_id or fleet.system_id(agent_id),

@@ -46,13 +46,13 @@ def odometry(tel: Telemetry, now_s: float, sim: bool) -> Odometry:
     if not math.isfinite(shift):
         shift = 0.0
     shift = max(-MAX_YAW_SHIFT_S, min(MAX_YAW_SHIFT_S, shift))
-    yaw = tel.yaw_rad + tel.yaw_rate_radps * shift
+    yaw = tel.yaw_rad + tel.yaw_rate_rad_s * shift
     c, s = math.cos(yaw), math.sin(yaw)
     vn, ve, vd = tel.v_ned
     t_boot = tel.t_boot_velocity_s if tel.t_boot_velocity_s is not None else tel.t_boot_s
     return Odometry(
         stamp_s=autopilot_stamp(t_boot, tel.velocity_age_s, now_s, sim),
         yaw_rad=math.remainder(yaw, math.tau),
-        yaw_rate_rad_s=tel.yaw_rate_radps,
+        yaw_rate_rad_s=tel.yaw_rate_rad_s,
         v_body=(c * vn + s * ve, -s * vn + c * ve, vd),
     )

@@ -224,7 +224,7 @@ class ArduPilotAutopilot(Autopilot):
             self.counters.ignored_setpoints += 1  # a real Copter finishes its takeoff first
             return
         self.last_setpoint_t_s = self.t_s
-        if max(abs(v) for v in sp.v_mps) > ABSURD_SPEED_MPS:
+        if max(abs(v) for v in sp.v_m_s) > ABSURD_SPEED_MPS:
             sp = mv.VelocitySetpoint(sp.frame, (0.0, 0.0, 0.0), None, None, stop=True)
         self.fly_velocity(sp, yaw_relative=sp.body)
 

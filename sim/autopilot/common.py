@@ -213,7 +213,7 @@ class Autopilot(Telemetry):
         """Disarmed: motors off. A disarmed vehicle in the air falls."""
         self.velocity_active = False
         w = self.world
-        w.command_velocity(self.index, (0.0, 0.0, w.config.v_max_down_mps), body=False)
+        w.command_velocity(self.index, (0.0, 0.0, w.config.v_max_down_m_s), body=False)
         w.command_yaw_rate(self.index, 0.0)
 
     def start_takeoff(self, altitude_m: float) -> None:
@@ -258,9 +258,9 @@ class Autopilot(Telemetry):
             w.command_velocity(i, (0.0, 0.0, 0.0), body=False)
             w.command_yaw_rate(i, 0.0)
             return
-        w.command_velocity(i, sp.v_mps, body=sp.body)
-        if sp.yaw_rate_radps is not None:
-            w.command_yaw_rate(i, sp.yaw_rate_radps)
+        w.command_velocity(i, sp.v_m_s, body=sp.body)
+        if sp.yaw_rate_rad_s is not None:
+            w.command_yaw_rate(i, sp.yaw_rate_rad_s)
         elif sp.yaw_rad is not None:
             yaw = sp.yaw_rad + (float(w.yaw_rad[i]) if yaw_relative else 0.0)
             w.command_yaw(i, yaw)

@@ -201,14 +201,14 @@ class Telemetry:
             float(o.yaw_rad[i]),
             0.0,
             0.0,
-            float(o.yaw_rate_radps[i]),
+            float(o.yaw_rate_rad_s[i]),
         )
 
     def _build_attitude_quaternion(self) -> Any:
         o, i = self._row()
         q = quaternion_from_euler(float(o.roll_rad[i]), float(o.pitch_rad[i]), float(o.yaw_rad[i]))
         return self.dialect.MAVLink_attitude_quaternion_message(
-            self.time_boot_ms(), *q, 0.0, 0.0, float(o.yaw_rate_radps[i])
+            self.time_boot_ms(), *q, 0.0, 0.0, float(o.yaw_rate_rad_s[i])
         )
 
     def _build_local_position_ned(self) -> Any:

@@ -30,7 +30,7 @@ def sweep(
     ] = None,
     seeds: Annotated[
         str | None,
-        typer.Option(help="A:B (inclusive: 0:999 is 1000 seeds) or a list 3,7,11 [0:9]"),
+        typer.Option(help="A:B (inclusive: 0:999 is 1000 seeds) or a list 3,7,11 (default 0:9)"),
     ] = None,
     set_: Annotated[
         list[str] | None,
@@ -50,7 +50,7 @@ def sweep(
     executor: Annotated[
         str | None,
         typer.Option(
-            help="local | processes[:N] (default) | dask[:N] | dask://HOST:PORT "
+            help="local | processes\\[:N] (default) | dask\\[:N] | dask://HOST:PORT "
             "(default dask when DASK_SCHEDULER_ADDRESS is set)"
         ),
     ] = None,

@@ -86,7 +86,7 @@ def fly_arc(link: Any, server: SimServer, wall_s: float) -> dict[str, float]:
         "chord": 2.0 * (U_MPS / R_RADPS) * math.sin(R_RADPS * dt / 2.0),
         "u_body": tel.v_body[0],
         "v_body": tel.v_body[1],
-        "yaw_rate": tel.yaw_rate_radps,
+        "yaw_rate": tel.yaw_rate_rad_s,
     }
 
 

@@ -145,7 +145,7 @@ def publish_truth_and_bearings(session, fleet: str, t: float) -> None:
                     p_ned=tuple(float(x) for x in p[i]),
                     v_ned=(0.0, 0.0, 0.0),
                     yaw_rad=float(yaw[i]),
-                    yaw_rate_radps=0.3,
+                    yaw_rate_rad_s=0.3,
                 )
             ),
         )

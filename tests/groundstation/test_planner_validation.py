@@ -26,7 +26,7 @@ LANDMARKS = np.array([[0.0, -8.0, 0.0], [-6.0, 10.0, 0.0], [9.0, 4.0, 0.0]])
 
 
 def test_flight_passes_every_waypoint_at_a_keyframe() -> None:
-    mission = Mission(SQUARE, speed_mps=5.0, rounds=2)
+    mission = Mission(SQUARE, speed_m_s=5.0, rounds=2)
     flight = fly_mission(mission)
     assert len(flight.keyframes) == 2 * len(SQUARE)
     step = np.linalg.norm(np.diff(flight.p_ned, axis=0), axis=1)
@@ -38,9 +38,9 @@ def test_flight_passes_every_waypoint_at_a_keyframe() -> None:
 
 def test_filter_is_exact_without_noise() -> None:
     """No odometry error, exact bearings, exact start: the estimate is the true path."""
-    mission = Mission(SQUARE, speed_mps=5.0, rounds=1)
+    mission = Mission(SQUARE, speed_m_s=5.0, rounds=1)
     flight = fly_mission(mission)
-    quiet = OdometryNoise(bias0_mps=0.0, bias_walk_mps_per_sqrt_s=0.0, white_mps=0.0)
+    quiet = OdometryNoise(bias0_m_s=0.0, bias_walk_mps_per_sqrt_s=0.0, white_m_s=0.0)
     rng = np.random.default_rng(0)
     v = simulate_odometry(flight, quiet, rng)
     y = simulate_bearings(flight, LANDMARKS, 0.0, rng)
@@ -52,15 +52,15 @@ def test_filter_is_exact_without_noise() -> None:
 
 def test_bearings_correct_drift() -> None:
     """Over seeded runs the end error with landmarks is well below dead reckoning's."""
-    mission = Mission(SQUARE, speed_mps=5.0, rounds=3)
-    noise = OdometryNoise(bias0_mps=0.1)
+    mission = Mission(SQUARE, speed_m_s=5.0, rounds=3)
+    noise = OdometryNoise(bias0_m_s=0.1)
     with_lm = [run_errors(mission, LANDMARKS, 0.05, noise, seed=s).final_m for s in range(6)]
     without = [run_errors(mission, np.zeros((0, 3)), 0.05, noise, seed=s).final_m for s in range(6)]
     assert np.mean(with_lm) < 0.5 * np.mean(without)
 
 
 def test_runs_are_seeded() -> None:
-    mission = Mission(SQUARE, speed_mps=5.0, rounds=1)
+    mission = Mission(SQUARE, speed_m_s=5.0, rounds=1)
     a = run_errors(mission, LANDMARKS, 0.1, OdometryNoise(), seed=(3, 1))
     b = run_errors(mission, LANDMARKS, 0.1, OdometryNoise(), seed=(3, 1))
     c = run_errors(mission, LANDMARKS, 0.1, OdometryNoise(), seed=(3, 2))
@@ -104,7 +104,7 @@ def test_camera_cone_and_best_heading() -> None:
 
 def test_landmarks_outside_the_view_are_not_used() -> None:
     """A camera pointed away from every landmark is dead reckoning, bit for bit."""
-    mission = Mission(SQUARE, speed_mps=5.0, rounds=1)
+    mission = Mission(SQUARE, speed_m_s=5.0, rounds=1)
     away = np.full(len(SQUARE), np.pi)  # facing south; the landmark is 200 m north
     far = np.array([[200.0, 0.0, 0.0]])
     blind = run_errors(mission, far, 0.1, OdometryNoise(), (5,), headings_rad=away, fov_rad=1.0)

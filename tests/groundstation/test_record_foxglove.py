@@ -74,7 +74,7 @@ def write_team(path: Path, chunk_bytes: int = CHUNK_BYTES) -> Recorder:
             status = scripted_status(cfg, i, 0.1 * k, k, "flying")
             rec.zenoh_sample(f"bf/alpha/{i}/status", encode(status), t)
             truth = Truth(sender=i, p_ned=(4.0 * i, 0.1 * k, -5.0), v_ned=(0.0, 1.0, 0.0),
-                          yaw_rad=0.3 * i, yaw_rate_radps=0.0)  # fmt: skip
+                          yaw_rad=0.3 * i, yaw_rate_rad_s=0.0)  # fmt: skip
             rec.zenoh_sample(f"bf/alpha/{i}/truth", encode(truth), t)
             cam = CameraBearings(sender=i, targets=[1 - i], beta_body=[(1.0, 0.0, 0.0)])
             rec.zenoh_sample(f"bf/alpha/{i}/camera/bearings", encode(cam), t)

@@ -103,5 +103,5 @@ def test_what_a_flying_team_sends_is_accepted():
     clock = SimClock(sender=0, t_s=3600.0, step=1_800_000, speedup=4.0, lockstep=False)
     assert decode(encode(clock), SimClock) == clock
     truth = Truth(sender=1, p_ned=(1.0, 2.0, -5.0), v_ned=(1.0, 0.0, 0.0), yaw_rad=0.5,
-                  yaw_rate_radps=0.2)  # fmt: skip
+                  yaw_rate_rad_s=0.2)  # fmt: skip
     assert decode(encode(truth), Truth) == truth

@@ -86,7 +86,7 @@ def test_body_velocity_facing_east_moving_east_is_forward():
 def test_saturation_keeps_small_setpoints():
     s = saturate_setpoint((0.3, -0.4, 0.2), 0.1, 2.0, 1.0, 0.8)
     assert s.v_body == pytest.approx((0.3, -0.4, 0.2))
-    assert s.yaw_rate_radps == pytest.approx(0.1)
+    assert s.yaw_rate_rad_s == pytest.approx(0.1)
     assert not s.clipped and not s.non_finite
 
 
@@ -95,7 +95,7 @@ def test_saturation_clips_horizontal_norm_keeping_direction():
     assert math.hypot(s.v_body[0], s.v_body[1]) == pytest.approx(2.0)
     assert s.v_body[0] / s.v_body[1] == pytest.approx(3.0 / 4.0)
     assert s.v_body[2] == pytest.approx(-1.0)
-    assert s.yaw_rate_radps == pytest.approx(-0.8)
+    assert s.yaw_rate_rad_s == pytest.approx(-0.8)
     assert s.clipped
 
 
@@ -107,7 +107,7 @@ def test_saturation_clips_horizontal_norm_keeping_direction():
 def test_non_finite_or_malformed_setpoint_means_stop(v, r):
     s = saturate_setpoint(v, r, 2.0, 1.0, 0.8)
     assert s.non_finite
-    assert s.v_body == (0.0, 0.0, 0.0) and s.yaw_rate_radps == 0.0
+    assert s.v_body == (0.0, 0.0, 0.0) and s.yaw_rate_rad_s == 0.0
 
 
 # --- retries -------------------------------------------------------------------------------------
@@ -194,7 +194,7 @@ def test_fold_heartbeat_attitude_position():
     assert st.apply(heartbeat(mv.px4_custom_mode(6), armed=True), 1.0)
     assert st.mode == "OFFBOARD" and st.armed and st.t_heartbeat_s == 1.0
     assert st.apply(dialect.MAVLink_attitude_message(2500, 0.1, -0.2, math.pi / 2, 0, 0, 0.3), 1.1)
-    assert (st.roll_rad, st.pitch_rad, st.yaw_rate_radps) == pytest.approx((0.1, -0.2, 0.3))
+    assert (st.roll_rad, st.pitch_rad, st.yaw_rate_rad_s) == pytest.approx((0.1, -0.2, 0.3))
     assert st.t_boot_s == pytest.approx(2.5)
     assert st.apply(
         dialect.MAVLink_local_position_ned_message(2600, 1, 2, -3.0, 0.0, 1.5, -0.2), 1.2
@@ -256,8 +256,8 @@ def test_snapshot_ages_and_stale_flags():
 def test_link_config_rejects_nonsense():
     with pytest.raises(ValueError, match="rate_hz"):
         LinkConfig(rate_hz=0.0)
-    with pytest.raises(ValueError, match="max_yaw_rate_radps"):
-        LinkConfig(max_yaw_rate_radps=math.nan)
+    with pytest.raises(ValueError, match="max_yaw_rate_rad_s"):
+        LinkConfig(max_yaw_rate_rad_s=math.nan)
     with pytest.raises(ValueError, match="command_sends"):
         LinkConfig(command_sends=0)
 

@@ -105,7 +105,7 @@ def test_reported_velocity_has_a_slow_bias_per_vehicle_in_the_heading_frame() ->
     np.testing.assert_allclose(mean[:, :2], np.mean(biases, axis=0)[:, :2], atol=0.004)
     spread = np.linalg.norm(mean[:, :2], axis=1)
     assert 0.01 < np.median(spread) < 0.08  # 1-8 cm/s: SITL's optical flow read 2-5
-    assert e[:, :, 0].std(axis=0).mean() == pytest.approx(cfg.vel_noise_std_mps, rel=0.2)
+    assert e[:, :, 0].std(axis=0).mean() == pytest.approx(cfg.vel_noise_std_m_s, rel=0.2)
 
 
 def rd_rot(yaw: np.ndarray) -> np.ndarray:
@@ -131,7 +131,7 @@ def test_ou_step_keeps_its_stationary_spread() -> None:
     assert x.std() == pytest.approx(0.5 * math.sqrt(1.0 - math.exp(-50.0)), rel=0.05)
 
 
-@pytest.mark.parametrize("name", ["v_omega_radps", "tau_att_s", "wander_tau_s"])
+@pytest.mark.parametrize("name", ["v_omega_rad_s", "tau_att_s", "wander_tau_s"])
 def test_bad_parameters_are_refused(name: str) -> None:
     with pytest.raises(ValueError, match=name):
         RealisticConfig(**{name: 0.0})

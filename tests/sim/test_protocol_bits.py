@@ -31,9 +31,9 @@ def test_type_masks_and_setpoint_interpretation():
     assert mv.MASK_VELOCITY_YAW == 1 + 2 + 4 + 64 + 128 + 256 + 2048 == 2503
     sp = mv.velocity_setpoint(8, 1479, (1.0, 2.0, 3.0), math.nan, 0.5)
     assert sp is not None and sp.body and not sp.stop
-    assert sp.yaw_rad is None and sp.yaw_rate_radps == 0.5
+    assert sp.yaw_rad is None and sp.yaw_rate_rad_s == 0.5
     sp = mv.velocity_setpoint(1, 2503, (1.0, 0.0, 0.0), 1.0, math.nan)
-    assert sp is not None and sp.yaw_rad == 1.0 and sp.yaw_rate_radps is None and not sp.stop
+    assert sp is not None and sp.yaw_rad == 1.0 and sp.yaw_rate_rad_s is None and not sp.stop
     assert mv.velocity_setpoint(1, 1479, (math.nan, 0.0, 0.0), 0.0, 0.0).stop
     assert mv.velocity_setpoint(1, 0b110111111000, (0.0, 0.0, 0.0), 0.0, 0.0) is None  # position
 

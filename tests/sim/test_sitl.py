@@ -141,7 +141,7 @@ def test_publisher_stamps_each_vehicle_on_its_own_clock():
     frame = SitlFrame(
         t_s=20.0, stamps_s=np.array([20.0, 20.03]),
         p_ned=np.array([[0.0, 0.0, -5.0], [3.0, 4.0, -5.0]]), yaw_rad=np.array([0.0, math.pi]),
-        v_ned=np.zeros((2, 3)), yaw_rate_radps=np.zeros(2),
+        v_ned=np.zeros((2, 3)), yaw_rate_rad_s=np.zeros(2),
     )  # fmt: skip
     pub(frame)
     got = dict(out)

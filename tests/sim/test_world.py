@@ -50,14 +50,14 @@ def test_acceleration_limit_holds_every_step():
 
 
 def test_speed_and_yaw_rate_limits():
-    cfg = DynamicsConfig(v_max_xy_mps=3.0, yaw_rate_max_radps=0.5)
+    cfg = DynamicsConfig(v_max_xy_m_s=3.0, yaw_rate_max_rad_s=0.5)
     w = World(AIR, [0.0], cfg)
     w.command_velocity(0, (10.0, 0.0, -10.0), body=False)
     w.command_yaw_rate(0, 5.0)
     _run(w, 5.0, dt=0.01)
     assert w.v_ned[0, 0] == pytest.approx(3.0, abs=1e-3)
-    assert w.v_ned[0, 2] == pytest.approx(-cfg.v_max_up_mps, abs=1e-3)
-    assert w.yaw_rate_radps[0] == pytest.approx(0.5, abs=1e-4)
+    assert w.v_ned[0, 2] == pytest.approx(-cfg.v_max_up_m_s, abs=1e-3)
+    assert w.yaw_rate_rad_s[0] == pytest.approx(0.5, abs=1e-4)
 
 
 def test_body_command_is_rotated_by_the_current_yaw():
@@ -127,8 +127,8 @@ def test_hold_law_limits_and_converges():
         w.step(0.01)
         max_xy = max(max_xy, float(np.linalg.norm(w.v_ned[0, :2])))
         max_up = max(max_up, float(-w.v_ned[0, 2]))
-    assert max_xy <= cfg.hold_max_xy_mps + 1e-9 and max_xy > 0.9 * cfg.hold_max_xy_mps
-    assert max_up <= cfg.hold_max_up_mps + 1e-9
+    assert max_xy <= cfg.hold_max_xy_m_s + 1e-9 and max_xy > 0.9 * cfg.hold_max_xy_m_s
+    assert max_up <= cfg.hold_max_up_m_s + 1e-9
     np.testing.assert_allclose(w.p_ned[0], [20.0, 0.0, -3.0], atol=1e-3)
 
 
@@ -137,7 +137,7 @@ def test_yaw_hold_takes_the_short_way():
     w.command_yaw(0, math.radians(-170.0))
     w.step(0.01)
     w.step(0.01)
-    assert w.yaw_rate_radps[0] > 0.0  # turns through 180, not back through 0
+    assert w.yaw_rate_rad_s[0] > 0.0  # turns through 180, not back through 0
     _run(w, 6.0, dt=0.01)
     assert abs((w.yaw_rad[0] - math.radians(-170.0) + math.pi) % (2 * math.pi) - math.pi) < 1e-3
 
@@ -168,13 +168,13 @@ def test_observation_exact_without_noise_and_tilt_physics():
     assert o.roll_rad[0] == pytest.approx(0.0, abs=1e-12)
     # hovering in a 5 m/s wind blowing towards the north: lean into it (nose up when facing north)
     h = World(AIR, [0.0])
-    o = observe(h, SensorNoise(wind_ned_mps=(5.0, 0.0, 0.0)), np.random.default_rng(0))
+    o = observe(h, SensorNoise(wind_ned_m_s=(5.0, 0.0, 0.0)), np.random.default_rng(0))
     assert o.pitch_rad[0] == pytest.approx(math.atan2(0.3 * 5.0, GRAVITY_MPS2))
 
 
 def test_noise_is_seeded():
     w = World(np.zeros((4, 3)), np.zeros(4))
-    noise = SensorNoise(velocity_std_mps=0.1, attitude_std_rad=0.01, seed=3)
+    noise = SensorNoise(velocity_std_m_s=0.1, attitude_std_rad=0.01, seed=3)
     a = observe(w, noise, np.random.default_rng(3))
     b = observe(w, noise, np.random.default_rng(3))
     c = observe(w, noise, np.random.default_rng(4))
