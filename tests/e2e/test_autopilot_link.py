@@ -182,8 +182,9 @@ def test_px4_offboard_flight_failsafe_pilot_takeover_and_bad_input(make_sim):
 
 
 def test_ardupilot_strict_boot_guided_velocity_and_guid_timeout(make_sim):
-    # init ("ArduPilot Ready") at 2 s, EKF position at 12 s of simulation time (twice real time)
-    server, base = make_sim("ardupilot", strict=True, warmup_s=2.0, ekf_warmup_s=12.0)
+    # init ("ArduPilot Ready") at 6 s, EKF position at 12 s of simulation time (twice real time):
+    # the mode below must be set before init, and on a loaded machine connecting alone took 1 s
+    server, base = make_sim("ardupilot", strict=True, warmup_s=6.0, ekf_warmup_s=12.0)
     link = PymavlinkLink(LinkConfig(mode_settle_s=0.5, ack_timeout_s=0.3))
     try:
         link.connect(f"tcp:127.0.0.1:{base}", timeout_s=5.0, request_streams=False)
