@@ -75,7 +75,7 @@ class RealisticConfig:
     yaw_zeta: float = 0.43
     """Shaped yaw-rate reference (no lead)."""
     yaw_cmd_delay_s: float = 0.06
-    wander_accel_std_mps2: float = 0.25
+    wander_accel_std_m_s2: float = 0.25
     """Standard deviation of each horizontal axis of the disturbance acceleration."""
     wander_tau_s: float = 0.5
     """Correlation time of the disturbance."""
@@ -106,7 +106,7 @@ class RealisticConfig:
         for name in positive:
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"RealisticConfig.{name} must be > 0, got {getattr(self, name)}")
-        non_negative = ("cmd_delay_s", "yaw_cmd_delay_s", "wander_accel_std_mps2",
+        non_negative = ("cmd_delay_s", "yaw_cmd_delay_s", "wander_accel_std_m_s2",
                         "wander_z_ratio", "report_delay_s", "vel_noise_std_m_s",
                         "vel_bias_std_m_s", "att_noise_std_rad", "yaw_bias_std_rad")  # fmt: skip
         for name in non_negative:
@@ -177,7 +177,7 @@ def initial_state(n: int, cfg: RealisticConfig, dt_s: float, p_ned: FloatArray,
 
 def wander_std(cfg: RealisticConfig) -> FloatArray:
     """Per-axis stationary std of the disturbance acceleration, ``(3,)``."""
-    s = cfg.wander_accel_std_mps2
+    s = cfg.wander_accel_std_m_s2
     return np.array([s, s, s * cfg.wander_z_ratio])
 
 

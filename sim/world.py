@@ -55,9 +55,9 @@ class DynamicsConfig:
     """Time constant of the velocity lag."""
     tau_yaw_s: float = 0.2
     """Time constant of the yaw-rate lag."""
-    accel_max_mps2: float = 4.0
+    accel_max_m_s2: float = 4.0
     """Limit on the norm of the acceleration."""
-    yaw_acc_max_radps2: float = math.radians(360.0)
+    yaw_acc_max_rad_s2: float = math.radians(360.0)
     v_max_xy_m_s: float = 12.0
     """Absolute limit on commanded horizontal speed (``MPC_XY_VEL_MAX``)."""
     v_max_up_m_s: float = 3.0
@@ -77,7 +77,7 @@ class DynamicsConfig:
     """Linear drag per unit mass, only used to lean the reported attitude into the wind."""
 
     def __post_init__(self) -> None:
-        for name in ("tau_v_s", "tau_yaw_s", "accel_max_mps2", "yaw_acc_max_radps2"):
+        for name in ("tau_v_s", "tau_yaw_s", "accel_max_m_s2", "yaw_acc_max_rad_s2"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"DynamicsConfig.{name} must be > 0, got {getattr(self, name)}")
 
@@ -277,11 +277,11 @@ def lag_step(
     more than what reaches the command in one step (no overshoot for any ``dt``).
     """
     a = (v_cmd_ned - v_ned) / max(cfg.tau_v_s, dt_s)
-    a = _saturate_norm(a, cfg.accel_max_mps2)
+    a = _saturate_norm(a, cfg.accel_max_m_s2)
     r_dot = np.clip(
         (yaw_rate_cmd_rad_s - yaw_rate_rad_s) / max(cfg.tau_yaw_s, dt_s),
-        -cfg.yaw_acc_max_radps2,
-        cfg.yaw_acc_max_radps2,
+        -cfg.yaw_acc_max_rad_s2,
+        cfg.yaw_acc_max_rad_s2,
     )
     return a, v_ned + a * dt_s, yaw_rate_rad_s + r_dot * dt_s
 

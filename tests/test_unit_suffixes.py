@@ -1,4 +1,4 @@
-"""One unit-suffix dialect (issue 21): rates are ``_m_s`` and ``_rad_s``, never ``_mps`` or
+"""One unit-suffix dialect (issue 21): rates are ``_m_s`` and ``_rad_s`` (``_m_s2``, ``_rad_s2``), never ``_mps`` or
 ``_radps``, in every name of the project's code (identifiers, keyword arguments, fields)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import tokenize
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-OTHER_DIALECT = re.compile(r"_(mps|radps)$")
+OTHER_DIALECT = re.compile(r"_(mps|radps)2?$")
 
 
 def names_in_other_dialect(source: str) -> list[str]:
@@ -19,9 +19,10 @@ def names_in_other_dialect(source: str) -> list[str]:
 
 
 def test_the_check_sees_the_other_dialect() -> None:
-    assert names_in_other_dialect("v_mps = 1\nf(yaw_rate_radps=2, speed_m_s=3)\n") == [
+    assert names_in_other_dialect("v_mps = 1\nf(yaw_rate_radps=2, a_mps2=0, speed_m_s=3)\n") == [
         "v_mps",
         "yaw_rate_radps",
+        "a_mps2",
     ]
 
 

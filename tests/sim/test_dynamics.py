@@ -87,7 +87,7 @@ def test_same_seed_same_flight_other_seed_other() -> None:
 
 
 def test_reported_velocity_has_a_slow_bias_per_vehicle_in_the_heading_frame() -> None:
-    cfg = RealisticConfig(seed=5, wander_accel_std_mps2=0.0)
+    cfg = RealisticConfig(seed=5, wander_accel_std_m_s2=0.0)
     n = 8
     w = World(np.column_stack([np.arange(n) * 5.0, np.zeros(n), -5.0 * np.ones(n)]),
               np.linspace(-3.0, 3.0, n), realistic=cfg, dt_s=DT)  # fmt: skip
@@ -140,7 +140,7 @@ def test_bad_parameters_are_refused(name: str) -> None:
 
 
 def test_a_stopped_vehicle_drifts_at_minus_its_bias_while_its_report_reads_zero() -> None:
-    cfg = RealisticConfig(seed=2, wander_accel_std_mps2=0.0, vel_bias_tau_s=1e6)
+    cfg = RealisticConfig(seed=2, wander_accel_std_m_s2=0.0, vel_bias_tau_s=1e6)
     w = World(AIR, [0.7], realistic=cfg, dt_s=DT)
     w.command_velocity(0, (0.0, 0.0, 0.0), body=True)
     for _ in range(1000):

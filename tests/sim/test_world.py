@@ -28,7 +28,7 @@ def _run(w: World, seconds: float, dt: float = 0.002) -> None:
 
 
 def test_first_order_lag_time_constant():
-    w = World(AIR, [0.0], DynamicsConfig(tau_v_s=0.3, accel_max_mps2=100.0))
+    w = World(AIR, [0.0], DynamicsConfig(tau_v_s=0.3, accel_max_m_s2=100.0))
     w.command_velocity(0, (0.5, 0.0, 0.0), body=False)
     _run(w, 0.3)
     assert w.v_ned[0, 0] == pytest.approx(0.5 * (1.0 - math.exp(-1.0)), rel=0.01)
@@ -37,7 +37,7 @@ def test_first_order_lag_time_constant():
 
 
 def test_acceleration_limit_holds_every_step():
-    cfg = DynamicsConfig(accel_max_mps2=2.0)
+    cfg = DynamicsConfig(accel_max_m_s2=2.0)
     w = World(AIR, [0.0], cfg)
     w.command_velocity(0, (8.0, -6.0, 0.0), body=False)
     dt = 0.01
@@ -61,7 +61,7 @@ def test_speed_and_yaw_rate_limits():
 
 
 def test_body_command_is_rotated_by_the_current_yaw():
-    w = World(AIR, [math.pi / 2], DynamicsConfig(accel_max_mps2=100.0))
+    w = World(AIR, [math.pi / 2], DynamicsConfig(accel_max_m_s2=100.0))
     w.command_velocity(0, (1.0, 0.0, 0.0), body=True)
     _run(w, 3.0, dt=0.01)
     np.testing.assert_allclose(w.v_ned[0], [0.0, 1.0, 0.0], atol=1e-4)  # nose east
@@ -73,7 +73,7 @@ def test_body_velocity_with_yaw_rate_flies_a_circle():
         AIR,
         [0.0],
         DynamicsConfig(
-            tau_v_s=0.05, tau_yaw_s=0.05, accel_max_mps2=100.0, yaw_acc_max_radps2=100.0
+            tau_v_s=0.05, tau_yaw_s=0.05, accel_max_m_s2=100.0, yaw_acc_max_rad_s2=100.0
         ),
     )
     w.command_velocity(0, (u, 0.0, 0.0), body=True)
@@ -156,7 +156,7 @@ def test_ground_contact():
 
 
 def test_observation_exact_without_noise_and_tilt_physics():
-    w = World(AIR, [math.pi / 2], DynamicsConfig(accel_max_mps2=2.0))
+    w = World(AIR, [math.pi / 2], DynamicsConfig(accel_max_m_s2=2.0))
     w.command_velocity(0, (5.0, 0.0, 0.0), body=True)  # accelerate forward (east)
     w.step(0.01)
     o = observe(w, SensorNoise(), np.random.default_rng(0))
