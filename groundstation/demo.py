@@ -575,7 +575,10 @@ def run_demo(
         evaluator = Evaluator(fleet, plan, zsettings)
         ev = evaluator
         if record:
-            recording = _start_recording(stack, out / RECORDING_NAME, fleet, ev.session, ports)
+            keys = out / "keys" if secure else None
+            recording = _start_recording(
+                stack, out / RECORDING_NAME, fleet, ev.session, ports, keys
+            )
 
         def sim_now() -> float | None:
             stamps = [tr.stamp_s for tr in list(ev.truth.values())]
@@ -644,10 +647,17 @@ RECORDING_NAME = "recording.mcap"
 
 
 def _start_recording(
-    stack: ExitStack, path: Path, fleet: str, session: Any, ports: DemoPorts
+    stack: ExitStack,
+    path: Path,
+    fleet: str,
+    session: Any,
+    ports: DemoPorts,
+    keys: Path | None = None,
 ) -> Path:
     """Record the run as ``gcs record`` does, on the evaluator's Zenoh session and the
     ground-station MAVLink port (a listening ground station: heartbeats, no stream requests).
+    With the fleet's ``keys`` (``--secure``) its heartbeats are signed with each vehicle's key,
+    as ``gcs record --keys`` signs them (system id = agent id + 1, the fleet file's default).
     Everything is closed by ``stack``, the file last."""
     from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
     from groundstation.gcs.record import Recorder
@@ -660,7 +670,16 @@ def _start_recording(
     listener.alive_hooks.append(recorder.alive)
     stack.callback(listener.close)
     listener.start()
-    mav = MavlinkListener([parse_endpoint(f"udp:127.0.0.1:{ports.gcs}")], request_streams=False)
+    signing = None
+    if keys is not None:
+        from messages.fleetkeys import load_signing_keys
+
+        signing = {i + 1: k for i, k in load_signing_keys(keys).items()}
+    mav = MavlinkListener(
+        [parse_endpoint(f"udp:127.0.0.1:{ports.gcs}")],
+        request_streams=False,
+        signing_keys=signing,
+    )
     mav.hooks.append(recorder.mavlink)
     stack.callback(mav.close)
     mav.start()

@@ -1,6 +1,11 @@
 """The README's main job end to end: ``bearingflock demo``'s mission with 6 vehicles, as real
 processes (simulator, six daemons, real UDP MAVLink, real Zenoh on loopback), scored against
-the simulator's truth and against the headless runner flying the same configurations."""
+the simulator's truth and against the headless runner flying the same configurations.
+
+It flies with security on (``--secure``: fresh fleet keys, ``[security] dir``, a simulator that
+accepts only correctly signed MAVLink, Zenoh over mutual TLS with per-vehicle access control),
+so the one long mission checks both; the plain links fly the same demo in
+``test_demo_realistic.py`` and every other end-to-end test (issue 24)."""
 
 from __future__ import annotations
 
@@ -38,7 +43,16 @@ graph it converged to the eigenvalue of a smaller graph, 21% low)."""
 
 
 def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path, recording_schemas):
-    summary = run_demo(VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, loss=LOSS)
+    summary = run_demo(
+        VEHICLES, "px4", MISSION_S, tmp_path, seed=0, speedup=SPEEDUP, loss=LOSS, secure=True
+    )
+    # security on: keys made 0600, the fleet file points at them, nothing unsigned or rejected
+    assert (tmp_path / "keys" / "mavlink-vehicle-5.key").stat().st_mode & 0o777 == 0o600
+    assert 'dir = "keys"' in (tmp_path / "fleet.toml").read_text()
+    dropped = summary["dropped_by_reason"]
+    assert not [k for k in dropped if k.startswith("mavlink_")], dropped  # no rejection
+    log = (tmp_path / "sim.log").read_text().splitlines()[-1]
+    assert "signed_ok=" in log and "unsigned_rejected" not in log, log
     # the run's recording opens in Foxglove: every channel schema'd, the team in a 3D scene
     names, problems = recording_schemas(tmp_path / "recording.mcap")
     assert summary["recording"] == str(tmp_path / "recording.mcap")
