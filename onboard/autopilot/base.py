@@ -30,6 +30,7 @@ import enum
 import math
 import time
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
@@ -336,6 +337,9 @@ class AutopilotLink(ABC):
     """What the daemon needs from an autopilot (module docstring)."""
 
     config: LinkConfig
+    setpoint_ages_s: deque[float]
+    """For each setpoint sent with a ``source_t``: its age when it went on the wire (link
+    clock, seconds; a bounded window)."""
 
     @property
     @abstractmethod

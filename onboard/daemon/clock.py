@@ -19,12 +19,29 @@ from messages.vocabulary import Alarm
 
 
 class Clock(Protocol):
+    """Everything the daemon's loop asks of its clock. A clock that subclasses this protocol
+    inherits the real-time answers of :attr:`speedup`, :meth:`observe` and :meth:`fault`."""
+
     def now(self) -> float | None:
         """Seconds, or ``None`` while the clock is not known yet."""
         ...
 
+    @property
+    def speedup(self) -> float:
+        """Clock seconds per wall second (1 for wall time)."""
+        return 1.0
 
-class WallClock:
+    def observe(self, t_sim_s: float) -> None:
+        """A time stamp the autopilot reported (simulation time in simulation): a clock that
+        follows the simulator moves up to it; others ignore it."""
+        return None
+
+    def fault(self) -> Alarm | None:
+        """An alarm while the clock rejected or followed an implausible time, else ``None``."""
+        return None
+
+
+class WallClock(Clock):
     """``time.time()``: vehicles that share NTP/PTP time agree on it, so bearing stamps from
     different vehicles are comparable (relative yaw pairs bearings captured together)."""
 
@@ -32,7 +49,7 @@ class WallClock:
         return time.time()
 
 
-class OffsetClock:
+class OffsetClock(Clock):
     """``inner`` shifted by ``offset_s``: fault injection (``bearingflock agent --clock-offset``)
     to rehearse a vehicle whose clock disagrees with its team's (:mod:`onboard.daemon.peer_clock`).
     """
@@ -47,16 +64,13 @@ class OffsetClock:
 
     @property
     def speedup(self) -> float:
-        return float(getattr(self.inner, "speedup", 1.0))
+        return self.inner.speedup
 
     def observe(self, t_sim_s: float) -> None:
-        observe = getattr(self.inner, "observe", None)
-        if observe is not None:
-            observe(t_sim_s)
+        self.inner.observe(t_sim_s)
 
-    def fault(self) -> str | None:
-        fault = getattr(self.inner, "fault", None)
-        return None if fault is None else fault()
+    def fault(self) -> Alarm | None:
+        return self.inner.fault()
 
 
 MAX_EXTRAPOLATION_S = 0.1
@@ -74,7 +88,7 @@ CLOCK_ALARM_S = 5.0
 ``clock_resync`` in the daemon's status)."""
 
 
-class SimClockFollower:
+class SimClockFollower(Clock):
     """Follows the simulator's time: ``SimClock`` samples (``messages.sim``, 10 Hz) with their
     speed-up, and any newer simulation time seen elsewhere (:meth:`observe`: the autopilot's
     ``time_boot_ms``, 20 Hz). Between them it extrapolates with the speed-up, by at most

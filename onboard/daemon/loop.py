@@ -8,10 +8,12 @@ streams it at ``rates.setpoint``. The **flight thread** runs the slow, blocking 
 actions (connect, wait for the estimator, arm, take off, enter OFFBOARD/GUIDED, land) so the
 core never stalls behind them.
 
-Safety (docs/design.md): setpoints are saturated by the link; stale inputs (autopilot
-telemetry, bearings, the clock) or a sensing graph that is no longer rigid after a peer was lost
-give zero velocity (hold); a pilot who takes the vehicle out of OFFBOARD/GUIDED gets it, since
-the link stops streaming; SIGINT/SIGTERM hold, then exit (or land, if configured).
+Safety (docs/design.md): setpoints are saturated by the link; every other rule is a guard
+(:mod:`onboard.daemon.guards`): stale inputs (autopilot telemetry, bearings, the clock), a
+neighbour's clock that disagrees, a non-finite setpoint or a sensing graph that is no longer
+rigid after a peer was lost give zero velocity (hold); the altitude band and the fence bound
+the setpoint; a pilot who takes the vehicle out of OFFBOARD/GUIDED gets it, since the link
+stops streaming; SIGINT/SIGTERM hold, then exit (or land, if configured).
 """
 
 from __future__ import annotations
@@ -32,13 +34,13 @@ from messages.agent import OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand
 from messages.limits import STAMP_FUTURE_MAX_S
-from messages.vocabulary import Alarm, alarm_text
+from messages.vocabulary import Alarm
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
-from onboard.control.envelope import bound_down_velocity, bound_horizontal_velocity
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
+from onboard.daemon.guards import GuardInput, daemon_guards, decide
 from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peer_clock import PeerClockCheck
@@ -176,6 +178,15 @@ class AgentDaemon:
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
         self._step_error_s = -math.inf
+        lim = fleet.config.limits
+        self.guards = daemon_guards(
+            self._rigid_without,
+            stale_s=lim.stale_s,
+            step_error_window_s=STEP_ERROR_ALARM_S,
+            min_alt_m=lim.min_alt_m,
+            max_alt_m=lim.max_alt_m,
+            max_radius_m=lim.max_radius_m,
+        )
 
     # ------------------------------------------------------------------ flight thread
     def _flight(self) -> None:
@@ -274,9 +285,8 @@ class AgentDaemon:
         """Peers that were seen and have been without a liveliness token for 2 s or more."""
         return sorted(j for j, t in self._lost_since.items() if now_s - t >= PEER_LOST_HOLD_S)
 
-    def _rigid_without(self, lost: list[int]) -> bool:
+    def _rigid_without(self, key: frozenset[int]) -> bool:
         """Is the planned framework still IBR in R^3 x S^1 among the agents that remain?"""
-        key = frozenset(lost)
         if key not in self._rigid_cache:
             keep = [k for k in range(self.fleet.n) if k not in key]
             idx = {k: m for m, k in enumerate(keep)}
@@ -353,9 +363,8 @@ class AgentDaemon:
                 next_tick = time.monotonic()  # overrun: do not try to catch up
             self.metrics.tick_late_s.append(max(0.0, time.monotonic() - next_tick))
             tel = self.link.telemetry()
-            observe = getattr(self.clock, "observe", None)
-            if observe is not None and tel.t_boot_s is not None:
-                observe(tel.t_boot_s)  # the simulator's autopilot counts simulation time
+            if tel.t_boot_s is not None:
+                self.clock.observe(tel.t_boot_s)  # the simulator's autopilot counts sim time
             now_s = self._now()
             if now_s is None or not tel.connected:
                 continue
@@ -404,7 +413,7 @@ class AgentDaemon:
         often (six daemons ticking at 100 Hz of wall time saturated two cores at any simulation
         speed). Faster than real time it keeps the wall rate: the tick rate per simulated
         second drops instead."""
-        speedup = getattr(self.clock, "speedup", 1.0)
+        speedup = self.clock.speedup
         return 1.0 / (self.fleet.config.rates.core * min(1.0, max(speedup, MIN_TICK_SPEEDUP)))
 
     def _step_core(self, now_s: float, tel: Telemetry) -> tuple[Setpoint, list[Payload]]:
@@ -456,72 +465,48 @@ class AgentDaemon:
         self.drops.drop(reason, f"{type(msg).__name__} seq {msg.seq} from {msg.sender}")
         return reason == "seq_resync"
 
-    def _fly(self, now_s: float, tel: Telemetry, setpoint) -> list[str]:
-        """Send the setpoint, or zero when unsafe; return the active alarms."""
-        c = self.fleet.config
-        alarms: list[str] = []
+    def _fly(self, now_s: float, tel: Telemetry, setpoint: Setpoint) -> list[str]:
+        """Send the setpoint, or zero when a guard holds (:mod:`onboard.daemon.guards`);
+        return the active alarms."""
         lost = self.lost_peers(now_s)
-        alarms += [alarm_text(Alarm.PEER_LOST, j) for j in lost]
-        if lost and not self._rigid_without(lost):
-            alarms.append(Alarm.RIGIDITY_LOST)
         skewed = self._check_peer_clocks(now_s)
-        alarms += [alarm_text(Alarm.PEER_CLOCK, j) for j in skewed]
-        if tel.stale:
-            alarms.append(Alarm.AUTOPILOT_STALE)
-        if self.bearings.age_s(now_s) > c.limits.stale_s:
-            alarms.append(Alarm.BEARINGS_STALE)
-        if now_s - self._step_error_s <= STEP_ERROR_ALARM_S:
-            alarms.append(Alarm.STEP_ERROR)
-        clock_fault = getattr(self.clock, "fault", None)
-        if clock_fault is not None and (fault := clock_fault()) is not None:
-            alarms.append(fault)  # clock_jump / clock_resync (onboard.daemon.clock)
         for event in self.link.events():
             if event.kind == "stream_stopped" and self.state.get() == "flying":
                 self.state.set("pilot", event.detail)
         phase = self.state.get()
-        if phase == "pilot":
-            alarms.append(Alarm.FAILSAFE)
-        finite = all(math.isfinite(x) for x in (*setpoint.v_body, setpoint.yaw_rate_rad_s))
-        if not finite:
-            alarms.append(Alarm.ESTIMATE_DIVERGING)
+        decision = decide(self.guards, self._guard_input(now_s, tel, setpoint, lost, skewed, phase))
         if phase == "flying":
-            safe = finite and not (
-                tel.stale
-                or skewed
-                or Alarm.RIGIDITY_LOST in alarms
-                or Alarm.BEARINGS_STALE in alarms
-                or Alarm.STEP_ERROR in alarms
-            )
-            if safe:
-                v = setpoint.v_body
-                v_down = bound_down_velocity(
-                    v[2], tel.altitude_m, c.limits.min_alt_m, c.limits.max_alt_m
-                )
-                if v_down < v[2]:
-                    alarms.append(Alarm.ALTITUDE_FLOOR)
-                elif v_down > v[2]:
-                    alarms.append(Alarm.ALTITUDE_CEILING)
-                v_x, v_y = self._fence(v[0], v[1], tel)
-                if (v_x, v_y) != (v[0], v[1]):
-                    alarms.append(Alarm.FENCE)
-                self.link.set_setpoint(
-                    (v_x, v_y, v_down), setpoint.yaw_rate_rad_s, self._frame_link_time(now_s)
-                )
-            else:
+            if decision.hold:
                 self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
-        return alarms
+            else:
+                sp = decision.setpoint
+                self.link.set_setpoint(sp.v_body, sp.yaw_rate_rad_s, self._frame_link_time(now_s))
+        return list(decision.alarms)
 
-    def _fence(self, v_x: float, v_y: float, tel: Telemetry) -> tuple[float, float]:
-        """The heading-frame horizontal command bounded by the fence about the autopilot's local
-        origin (:func:`onboard.control.envelope.bound_horizontal_velocity`, in NED)."""
-        c, s = math.cos(tel.yaw_rad), math.sin(tel.yaw_rad)
-        v_n, v_e = c * v_x - s * v_y, s * v_x + c * v_y
-        b_n, b_e = bound_horizontal_velocity(
-            v_n, v_e, tel.north_m, tel.east_m, self.fleet.config.limits.max_radius_m
+    def _guard_input(
+        self,
+        now_s: float,
+        tel: Telemetry,
+        setpoint: Setpoint,
+        lost: list[int],
+        skewed: list[int],
+        phase: str,
+    ) -> GuardInput:
+        """What the guards look at this tick."""
+        return GuardInput(
+            phase=phase,
+            setpoint=setpoint,
+            lost_peers=tuple(lost),
+            skewed_peers=tuple(skewed),
+            autopilot_stale=tel.stale,
+            bearings_age_s=self.bearings.age_s(now_s),
+            step_error_age_s=now_s - self._step_error_s,
+            clock_fault=self.clock.fault(),
+            altitude_m=tel.altitude_m,
+            north_m=tel.north_m,
+            east_m=tel.east_m,
+            yaw_rad=tel.yaw_rad,
         )
-        if (b_n, b_e) == (v_n, v_e):
-            return v_x, v_y  # untouched (no round trip through the rotation)
-        return c * b_n + s * b_e, -s * b_n + c * b_e
 
     def _check_peer_clocks(self, now_s: float) -> list[int]:
         """Neighbours whose clocks disagree with ours (:mod:`onboard.daemon.peer_clock`): their
@@ -546,7 +531,7 @@ class AgentDaemon:
         """When (link clock) the newest bearing frame used so far was captured."""
         if not math.isfinite(self._newest_frame_s):
             return None
-        speedup = getattr(self.clock, "speedup", 1.0)
+        speedup = self.clock.speedup
         return self.link.config.clock() - (now_s - self._newest_frame_s) / max(speedup, 1e-6)
 
     def _shutdown(self) -> None:
@@ -559,5 +544,5 @@ class AgentDaemon:
             self.link.stop_streaming("daemon exit")
         self.state.set("stopped")
         summary = self.metrics.summary()
-        summary["bearing_to_wire"] = percentiles_ms(list(getattr(self.link, "setpoint_ages_s", ())))
+        summary["bearing_to_wire"] = percentiles_ms(list(self.link.setpoint_ages_s))
         log.info("metrics %s", json.dumps(summary))

@@ -16,7 +16,7 @@ from groundstation.demo import DemoPorts, plan_formation, write_demo_files
 from messages import mavlink as mv
 from onboard.autopilot.base import Flavour, LinkConfig, LinkCounters, LinkError, StreamState
 from onboard.autopilot.states import Saturated, TelemetryState, snapshot
-from onboard.daemon.clock import WallClock
+from onboard.daemon.clock import Clock, WallClock
 from onboard.daemon.config import load_fleet
 from onboard.daemon.loop import AgentDaemon
 from onboard.daemon.peers import DropCounter
@@ -37,6 +37,7 @@ class _Link:
 
     def __init__(self) -> None:
         self.setpoints: list[tuple] = []
+        self.setpoint_ages_s: list[float] = []
 
     def connect(self, url: str, timeout_s: float) -> None:
         time.sleep(0.05)
@@ -105,7 +106,7 @@ def test_an_exception_in_one_tick_is_counted_alarmed_and_the_loop_goes_on(tmp_pa
     assert drops.snapshot()["step_exception"] == 1  # once: the next ticks ran normally
 
 
-class _SettableClock:
+class _SettableClock(Clock):
     def __init__(self, t_s: float) -> None:
         self.t_s, self.t0 = t_s, time.monotonic()
 
