@@ -11,7 +11,8 @@ MAVLink over UDP/TCP/serial with pymavlink) and :class:`onboard.autopilot.mavsdk
 * ``request_streams()``, ``wait_ready()``, ``arm()``, ``takeoff()``, ``land()``, ``hold()``,
   ``disarm()``, ``set_mode()`` and ``start_velocity_control()`` block until done and return an
   :class:`ActionResult` (they never raise on a refusal or a timeout);
-* ``set_setpoint(v_body, yaw_rate)`` stores the latest command (saturated, NaN-safe); a
+* ``set_setpoint(setpoint)`` stores the latest :class:`messages.agent.Setpoint` (saturated,
+  NaN-safe); a
   background sender streams it at :attr:`LinkConfig.rate_hz` while velocity control is active;
 * ``stop_streaming()`` stops the stream (the autopilot then fails safe: PX4 leaves OFFBOARD after
   ``COM_OF_LOSS_T``, ArduPilot zeroes the velocity after ``GUID_TIMEOUT``), and the link stops it by
@@ -33,6 +34,8 @@ from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+
+from messages.agent import Setpoint
 
 Vec3 = tuple[float, float, float]
 
@@ -388,10 +391,9 @@ class AutopilotLink(ABC):
     def start_velocity_control(self, timeout_s: float | None = None) -> ActionResult: ...
 
     @abstractmethod
-    def set_setpoint(
-        self, v_body: Vec3, yaw_rate_rad_s: float, source_t: float | None = None
-    ) -> tuple[Vec3, float]:
-        """Store the command to stream; returns it saturated and NaN-free. ``source_t`` (link
+    def set_setpoint(self, setpoint: Setpoint, source_t: float | None = None) -> Setpoint:
+        """Store the command to stream (heading-frame ``v_body``, yaw rate); returns it
+        saturated and NaN-free. ``source_t`` (link
         clock) is when the newest measurement it is based on was taken: each send then records
         its age in :attr:`setpoint_ages_s` (the daemon's bearing-to-wire latency)."""
 

@@ -10,6 +10,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import fields
 
+from messages.agent import Setpoint
 from onboard.autopilot.base import (
     ActionResult,
     AutopilotLink,
@@ -18,7 +19,6 @@ from onboard.autopilot.base import (
     LinkEvent,
     StreamState,
     Telemetry,
-    Vec3,
 )
 from onboard.autopilot.states import (
     Attempt,
@@ -116,13 +116,11 @@ class LinkBookkeeping(AutopilotLink):
             detail=a.detail + suffix,
         )
 
-    def set_setpoint(
-        self, v_body: Vec3, yaw_rate_rad_s: float, source_t: float | None = None
-    ) -> tuple[Vec3, float]:
+    def set_setpoint(self, setpoint: Setpoint, source_t: float | None = None) -> Setpoint:
         cfg = self.config
         sat = saturate_setpoint(
-            v_body,
-            yaw_rate_rad_s,
+            setpoint.v_body,
+            setpoint.yaw_rate_rad_s,
             cfg.max_speed_xy_m_s,
             cfg.max_speed_z_m_s,
             cfg.max_yaw_rate_rad_s,
@@ -135,7 +133,7 @@ class LinkBookkeeping(AutopilotLink):
             active = self._stream is not StreamState.IDLE
         if active:
             self._on_setpoint(sat)
-        return sat.v_body, sat.yaw_rate_rad_s
+        return Setpoint(sat.v_body, sat.yaw_rate_rad_s)
 
     def _on_setpoint(self, sat: Saturated) -> None:
         """A new setpoint while streaming: backends that push setpoints on change do it here

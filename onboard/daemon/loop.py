@@ -40,7 +40,7 @@ from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
-from onboard.daemon.guards import GuardInput, daemon_guards, decide
+from onboard.daemon.guards import ZERO_SETPOINT, GuardInput, daemon_guards, decide
 from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peer_clock import PeerClockCheck
@@ -237,18 +237,18 @@ class AgentDaemon:
         if action == "start":
             if not link.telemetry().in_air:
                 return False, "not in the air: arm and take off first"
-            link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            link.set_setpoint(ZERO_SETPOINT)
             result = link.start_velocity_control()
             if not result.ok:
                 return False, f"velocity control refused: {result.result_name} {result.detail}"
             self.state.set("flying")
             return True, "flying"
         if action == "hold":
-            link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            link.set_setpoint(ZERO_SETPOINT)
             self.state.set("holding")
             return True, "holding"
         if action in ("land", "stop"):
-            link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            link.set_setpoint(ZERO_SETPOINT)
             self.state.set("landing")
             result = link.land()
             link.stop_streaming("landing")
@@ -265,7 +265,7 @@ class AgentDaemon:
                 self._landing.set()  # sticky: no auto-start or start after it
             if cmd.action == "hold" or cmd.action == "stop":
                 # act at once on the setpoint, then let the flight thread do the rest
-                self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+                self.link.set_setpoint(ZERO_SETPOINT)
                 if cmd.action == "hold":
                     self.state.set("holding")
             self._actions.put((cmd.action, cmd))
@@ -401,7 +401,7 @@ class AgentDaemon:
         self.drops.drop(reason, f"{type(exc).__name__}: {exc}")
         self._step_error_s = now_s
         try:
-            self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            self.link.set_setpoint(ZERO_SETPOINT)
         except Exception:  # the link itself failed: nothing more to do this tick
             log.debug("zero setpoint after a failed step failed too", exc_info=True)
         if Alarm.STEP_ERROR not in self._alarms:
@@ -477,10 +477,9 @@ class AgentDaemon:
         decision = decide(self.guards, self._guard_input(now_s, tel, setpoint, lost, skewed, phase))
         if phase == "flying":
             if decision.hold:
-                self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+                self.link.set_setpoint(ZERO_SETPOINT)
             else:
-                sp = decision.setpoint
-                self.link.set_setpoint(sp.v_body, sp.yaw_rate_rad_s, self._frame_link_time(now_s))
+                self.link.set_setpoint(decision.setpoint, self._frame_link_time(now_s))
         return list(decision.alarms)
 
     def _guard_input(
@@ -537,7 +536,7 @@ class AgentDaemon:
     def _shutdown(self) -> None:
         c = self.fleet.config
         if self.state.get() in ("flying", "holding"):
-            self.link.set_setpoint((0.0, 0.0, 0.0), 0.0)
+            self.link.set_setpoint(ZERO_SETPOINT)
             time.sleep(0.3)
             if c.on_exit == "land":
                 self.link.land()

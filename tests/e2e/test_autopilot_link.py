@@ -19,6 +19,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as px4_dialect
 
 from messages import mavlink as mv
+from messages.agent import Setpoint
 from onboard.autopilot.base import LinkConfig, LinkError, StreamState
 from onboard.autopilot.pymavlink_link import PymavlinkLink
 from sim.server import SimConfig, SimServer, free_port_base
@@ -69,7 +70,7 @@ def fly_arc(link: Any, server: SimServer, wall_s: float) -> dict[str, float]:
     def stream(seconds: float) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            link.set_setpoint((U_MPS, 0.0, 0.0), R_RADPS)
+            link.set_setpoint(Setpoint((U_MPS, 0.0, 0.0), R_RADPS))
             time.sleep(0.05)
 
     stream(0.5)  # let the velocity lag (0.3 s) settle
@@ -136,7 +137,7 @@ def test_px4_offboard_flight_failsafe_pilot_takeover_and_bad_input(make_sim):
 
         # the pilot takes the vehicle out of OFFBOARD from a ground station on the GCS port
         assert link.start_velocity_control().ok
-        link.set_setpoint((0.5, 0.0, 0.0), 0.0)
+        link.set_setpoint(Setpoint((0.5, 0.0, 0.0), 0.0))
         gcs = mavutil.mavlink_connection(
             f"udpin:127.0.0.1:{base + 10}", source_system=255, source_component=190
         )

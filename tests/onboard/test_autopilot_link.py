@@ -14,6 +14,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from messages import mavlink as mv
+from messages.agent import Setpoint
 from onboard.autopilot.base import LinkConfig, StreamState, serial_device
 from onboard.autopilot.mavsdk_link import map_result, mavsdk_url
 from onboard.autopilot.pymavlink_link import PymavlinkLink
@@ -180,18 +181,19 @@ def test_sender_streams_saturated_body_velocity_and_zero_when_stale(link):
     assert not [m for m in v.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
     assert [m.type for m in v.sent if m.get_type() == "HEARTBEAT"] == [18]
     link._stream = StreamState.ACTIVE
-    v_sat, r_sat = link.set_setpoint((3.0, 4.0, 0.0), 5.0)
-    assert v_sat == pytest.approx((1.2, 1.6, 0.0)) and r_sat == pytest.approx(0.8)
+    sat = link.set_setpoint(Setpoint((3.0, 4.0, 0.0), 5.0))
+    assert isinstance(sat, Setpoint)
+    assert sat.v_body == pytest.approx((1.2, 1.6, 0.0)) and sat.yaw_rate_rad_s == pytest.approx(0.8)
     link._tick(link._clock())
     sp = [m for m in v.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"][-1]
     assert sp.coordinate_frame == mv.FRAME_BODY_NED and sp.type_mask == mv.MASK_VELOCITY_YAW_RATE
     assert (sp.vx, sp.vy, sp.vz, sp.yaw_rate) == pytest.approx((1.2, 1.6, 0.0, 0.8))
     assert (sp.target_system, sp.target_component) == (1, 1)
-    link.set_setpoint((math.nan, 0.0, 0.0), 0.1)
+    link.set_setpoint(Setpoint((math.nan, 0.0, 0.0), 0.1))
     link._tick(link._clock())
     sp = [m for m in v.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"][-1]
     assert (sp.vx, sp.vy, sp.vz, sp.yaw_rate) == (0.0, 0.0, 0.0, 0.0)
-    link.set_setpoint((1.0, 0.0, 0.0), 0.0)
+    link.set_setpoint(Setpoint((1.0, 0.0, 0.0), 0.0))
     link._tick(link._clock() + FAST.setpoint_timeout_s + 0.1)  # the agent went quiet
     sp = [m for m in v.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"][-1]
     assert sp.vx == 0.0

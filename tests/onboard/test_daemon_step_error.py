@@ -14,6 +14,7 @@ from pymavlink.dialects.v20 import common as dialect
 
 from groundstation.demo import DemoPorts, plan_formation, write_demo_files
 from messages import mavlink as mv
+from messages.agent import Setpoint
 from onboard.autopilot.base import Flavour, LinkConfig, LinkCounters, LinkError, StreamState
 from onboard.autopilot.states import Saturated, TelemetryState, snapshot
 from onboard.daemon.clock import Clock, WallClock
@@ -46,8 +47,9 @@ class _Link:
     def telemetry(self):
         return _telemetry()
 
-    def set_setpoint(self, v_body, yaw_rate, stamp=None) -> None:
-        self.setpoints.append((v_body, yaw_rate))
+    def set_setpoint(self, setpoint: Setpoint, source_t=None) -> Setpoint:
+        self.setpoints.append((setpoint.v_body, setpoint.yaw_rate_rad_s))
+        return setpoint
 
     def events(self) -> list:
         return []
