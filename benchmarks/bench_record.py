@@ -15,17 +15,21 @@ Usage: ``python benchmarks/bench_record.py [--agents 6] [--seconds 20] [--from F
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 from mcap.writer import Writer
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the scripted statuses: tests/
+
+
 from groundstation.gcs.record import CHUNK_BYTES, Recorder, Source, iter_records
-from groundstation.gcs.standin import StandinConfig, scripted_status
 from messages.codec import encode
 from messages.peer import ConsensusState, MotionShare, SfmEstimate
 from messages.sim import CameraBearings, Truth
+from tests.groundstation.standin import StandinConfig, scripted_status
 
 T0 = 1_700_000_000.0
 

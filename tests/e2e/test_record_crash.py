@@ -12,12 +12,12 @@ import pytest
 from typer.testing import CliRunner
 
 from groundstation.gcs.record import FLUSH_PERIOD_S, Source, read_recording
-from groundstation.gcs.standin import StandinConfig, scripted_status
 from groundstation.gcs_cli import gcs_app
 from messages.agent import VehicleStatus
 from messages.codec import decode, encode
 from messages.transport import ZenohSettings, loopback_endpoint, open_session
 from sim.server import free_port_base
+from tests.groundstation.standin import StandinConfig, scripted_status
 
 pytestmark = pytest.mark.e2e
 RATE_HZ = 20.0

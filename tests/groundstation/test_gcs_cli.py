@@ -9,9 +9,9 @@ import socket
 from typer.testing import CliRunner
 
 from groundstation.gcs.record import Recorder
-from groundstation.gcs.standin import StandinConfig, scripted_status
 from groundstation.gcs_cli import gcs_app
 from messages.codec import encode
+from tests.groundstation.standin import StandinConfig, scripted_status
 
 
 def run(*args: str, input: str | None = None):

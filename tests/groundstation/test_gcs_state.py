@@ -15,12 +15,12 @@ from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
 from groundstation.gcs.mavlink_state import LossWindow, MavlinkState, sequence_gap
 from groundstation.gcs.monitor import MonitorConfig, render, snapshot
 from groundstation.gcs.similarity import similarity_2d
-from groundstation.gcs.standin import StandinConfig, scripted_status
 from groundstation.gcs.zenoh_listener import ZenohState, classify
 from messages import mavlink as mv
 from messages.codec import SCHEMA_VERSION, MessageError, encode
 from messages.sim import SimClock
 from messages.vocabulary import Alarm, alarm_text
+from tests.groundstation.standin import StandinConfig, scripted_status
 
 
 class _Sink:

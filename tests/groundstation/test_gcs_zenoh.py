@@ -19,13 +19,13 @@ from groundstation.gcs.monitor import Monitor, MonitorConfig
 from groundstation.gcs.plot import plot_all
 from groundstation.gcs.record import LIVELINESS_ENCODING, Recorder, Source, iter_records
 from groundstation.gcs.replay import replay
-from groundstation.gcs.standin import Standin, StandinConfig
 from groundstation.gcs.zenoh_listener import ZenohListener
 from messages.codec import encode
 from messages.command import FleetCommand
 from messages.sim import CameraBearings, Truth
 from messages.transport import ZenohSettings, loopback_endpoint, open_session
 from sim.server import free_port_base
+from tests.groundstation.standin import Standin, StandinConfig
 
 
 @pytest.fixture
@@ -112,7 +112,7 @@ def test_killed_agent_turns_red_within_5s(hub):
     listener = ZenohListener(connect(), "zk").start()
     mon = Monitor(MonitorConfig(fleet="zk"), None, listener)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.gcs.standin", "--fleet", "zk", "--ids", "3",
+        [sys.executable, "-m", "tests.groundstation.standin", "--fleet", "zk", "--ids", "3",
          "--connect", endpoint],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
     )  # fmt: skip

@@ -33,12 +33,12 @@ from groundstation.gcs.record import (
     read_recording,
     tlog_path,
 )
-from groundstation.gcs.standin import StandinConfig, scripted_status
 from groundstation.gcs_cli import gcs_app
 from messages.codec import decode, encode
 from messages.image import Image
 from messages.rigidity import RigidityEigenShare
 from messages.sim import CameraBearings, SimClock, Truth
+from tests.groundstation.standin import StandinConfig, scripted_status
 
 T0 = 1_700_000_000.0
 

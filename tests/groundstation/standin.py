@@ -7,7 +7,7 @@ index ``E`` decays as ``e0 exp(-t / tau)``, the scale converges when it drops be
 :class:`~messages.command.CommandAck` (ids in ``reject`` refuse). Nothing here estimates
 anything: the numbers are a script, not a simulation.
 
-    python -m groundstation.gcs.standin --fleet alpha --ids 0,1,2 --connect tcp/127.0.0.1:7447
+    python -m tests.groundstation.standin --fleet alpha --ids 0,1,2 --connect tcp/127.0.0.1:7447
 """
 
 from __future__ import annotations
