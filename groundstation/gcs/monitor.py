@@ -179,13 +179,16 @@ def fleet_line(rows: Sequence[dict[str, Any]], zen: ZenohState | None) -> dict[s
         r for r in rows if r.get("agent_mode") is not None and Alarm.AGENT_LOST not in r["alarms"]
     ]
     eigs = [r["rigidity_eigenvalue"] for r in agents if r.get("rigidity_eigenvalue") is not None]
+    # an agent's rigidity_lost (the same enum it raises: messages.vocabulary) is "not rigid"
+    # whether or not its mode estimates a rigidity eigenvalue
+    lost = any(alarm_kind(a) is Alarm.RIGIDITY_LOST for r in agents for a in r["alarms"])
     rigid: bool | None
-    if not eigs:
+    if lost:
+        rigid = False
+    elif not eigs:
         rigid = None
     else:
-        rigid = all(e > RIGIDITY_MIN for e in eigs) and not any(
-            alarm_kind(a) is Alarm.RIGIDITY_LOST for r in agents for a in r["alarms"]
-        )
+        rigid = all(e > RIGIDITY_MIN for e in eigs)
     scale_s = None
     if zen is not None and zen.scale_pending_s is not None and zen.scale_converged_s is not None:
         scale_s = _round(zen.scale_converged_s - zen.scale_pending_s, 1)
