@@ -26,8 +26,20 @@ class Alarm(StrEnum):
     BEARINGS_STALE = "bearings_stale"
     """Agent: the camera's bearings are older than the stale limit; it holds."""
     FAILSAFE = "failsafe"
-    """Agent: the autopilot left offboard/guided control (pilot or failsafe). Ground station:
-    the autopilot reports a critical system state."""
+    """Agent: the autopilot left offboard/guided control by itself (its failsafe: a stalled
+    stream, a lost link, a hold/land/return mode); the operator's ``start`` rejoins. Ground
+    station: the autopilot reports a critical system state."""
+    PILOT_TAKEOVER = "pilot_takeover"
+    """Agent: a pilot switched the autopilot to a manual mode; the pilot has the vehicle (a
+    ``start`` is refused until the autopilot is in a hold mode again)."""
+    AUTOPILOT_LOST = "autopilot_lost"
+    """Agent: no autopilot heartbeat within the link's limit (or never connected): the core
+    does not run; the status still goes out."""
+    TELEMETRY_IMPLAUSIBLE = "telemetry_implausible"
+    """Agent: the autopilot sent finite but physically impossible values (dropped); it holds
+    for a moment."""
+    ESTIMATE_NONFINITE = "estimate_nonfinite"
+    """Agent: its own estimates are not finite (its status carries zeros for them); it holds."""
     ESTIMATE_DIVERGING = "estimate_diverging"
     """Agent: the core produced a non-finite setpoint; it holds."""
     ALTITUDE_FLOOR = "altitude_floor"

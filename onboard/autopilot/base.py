@@ -229,6 +229,11 @@ class Telemetry:
     """The (saturated) setpoint being streamed."""
     setpoint_yaw_rate_rad_s: float
     counters: LinkCounters
+    implausible_age_s: float = math.inf
+    """Seconds since the autopilot last sent finite but physically impossible telemetry
+    (dropped; ``inf``: never)."""
+    implausible: int = 0
+    """Telemetry messages dropped as implausible."""
 
     @property
     def in_air(self) -> bool:

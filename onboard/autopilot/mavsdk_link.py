@@ -47,11 +47,13 @@ from onboard.autopilot.base import (
 from onboard.autopilot.bookkeeping import ZERO_SETPOINT, LinkBookkeeping
 from onboard.autopilot.states import (
     CONTROL_MODE,
+    TELEMETRY_LIMITS,
     Attempt,
     Saturated,
     TelemetryState,
     climb_done,
     flavour_from_autopilot,
+    plausible,
 )
 
 HEARTBEAT_WAIT_S = 2.5
@@ -250,6 +252,7 @@ class MavsdkLink(LinkBookkeeping):
         roll, pitch, yaw = (math.radians(x) for x in (a.roll_deg, a.pitch_deg, a.yaw_deg))
         if not all(math.isfinite(x) for x in (roll, pitch, yaw)):
             raise ValueError("non-finite attitude")
+        self._require_plausible("ATTITUDE", {"roll": roll, "pitch": pitch, "yaw": yaw})
         st = self._state
         st.roll_rad, st.pitch_rad, st.yaw_rad = roll, pitch, yaw
         st.t_attitude_s = self._clock()
@@ -258,6 +261,7 @@ class MavsdkLink(LinkBookkeeping):
     def _on_rates(self, w: Any) -> None:
         if not math.isfinite(w.yaw_rad_s):
             raise ValueError("non-finite yaw rate")
+        self._require_plausible("ATTITUDE", {"yawspeed": float(w.yaw_rad_s)})
         self._state.yaw_rate_rad_s = float(w.yaw_rad_s)
 
     def _on_position_velocity(self, pv: Any) -> None:
@@ -265,10 +269,19 @@ class MavsdkLink(LinkBookkeeping):
         pos = (pv.position.north_m, pv.position.east_m, pv.position.down_m)
         if not all(math.isfinite(x) for x in (*v, *pos)):
             raise ValueError("non-finite position/velocity")
+        names = ("vx", "vy", "vz", "x", "y", "z")
+        self._require_plausible("LOCAL_POSITION_NED", dict(zip(names, (*v, *pos), strict=True)))
         st = self._state
         st.v_ned = (float(v[0]), float(v[1]), float(v[2]))
         st.north_m, st.east_m, st.altitude_m = float(pos[0]), float(pos[1]), -float(pos[2])
         st.t_velocity_s = self._clock()
+
+    def _require_plausible(self, kind: str, values: dict[str, float]) -> None:
+        """Raise ``ValueError`` (the callback's drop) for values beyond
+        :data:`onboard.autopilot.states.TELEMETRY_LIMITS`, remembering when (the daemon holds)."""
+        if not plausible(values, TELEMETRY_LIMITS[kind]):
+            self._state.implausible_at(self._clock())
+            raise ValueError(f"implausible {kind}: {values}")
 
     def _on_landed(self, landed: Any) -> None:
         self._state.landed_state = int(landed)  # MAVSDK's enum has MAV_LANDED_STATE's values

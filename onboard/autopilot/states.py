@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from messages import mavlink as mv
+from messages.limits import POSITION_MAX_M, RATE_MAX_RAD_S, SPEED_MAX_M_S
 from onboard.autopilot.base import (
     Flavour,
     LinkConfig,
@@ -235,6 +236,33 @@ _FLOAT_FIELDS: dict[str, tuple[str, ...]] = {
     "ATTITUDE": ("roll", "pitch", "yaw", "yawspeed"),
     "LOCAL_POSITION_NED": ("x", "y", "z", "vx", "vy", "vz"),
 }
+ATTITUDE_MAX_RAD = 2.0 * math.pi
+"""Roll, pitch and yaw of ATTITUDE (MAVLink sends them in ``[-pi, pi]``)."""
+TELEMETRY_LIMITS: dict[str, dict[str, float]] = {
+    "ATTITUDE": {
+        "roll": ATTITUDE_MAX_RAD,
+        "pitch": ATTITUDE_MAX_RAD,
+        "yaw": ATTITUDE_MAX_RAD,
+        "yawspeed": RATE_MAX_RAD_S,
+    },
+    "LOCAL_POSITION_NED": {
+        "x": POSITION_MAX_M,
+        "y": POSITION_MAX_M,
+        "z": POSITION_MAX_M,
+        "vx": SPEED_MAX_M_S,
+        "vy": SPEED_MAX_M_S,
+        "vz": SPEED_MAX_M_S,
+    },
+}
+"""Plausibility bounds (absolute value) of the autopilot telemetry the agent uses: the physical
+ranges of :mod:`messages.limits` (100 km, 100 m/s, 20 rad/s). Corrupted but finite telemetry
+(altitude 1e6 m, velocity 1e4 m/s, yaw rate 100 rad/s) once passed and kept the estimates
+100-150 % off for a minute (issue 23)."""
+
+
+def plausible(values: dict[str, float], limits: dict[str, float]) -> bool:
+    """Whether every ``values[name]`` with a limit is within ``[-limit, limit]`` (finite)."""
+    return all(abs(values[n]) <= lim for n, lim in limits.items() if n in values)
 
 
 @dataclass
@@ -266,6 +294,10 @@ class TelemetryState:
     t_attitude_s: float = -math.inf
     t_velocity_s: float = -math.inf
     t_sys_status_s: float = -math.inf
+    t_implausible_s: float = -math.inf
+    """When the last implausible (finite but out of :data:`TELEMETRY_LIMITS`) message came."""
+    implausible: int = 0
+    """Messages dropped as implausible."""
     statustexts: list[tuple[float, int, str]] = field(default_factory=list)
     max_statustexts: int = 100
 
@@ -276,10 +308,21 @@ class TelemetryState:
         names = _FLOAT_FIELDS.get(kind)
         if names is not None and not all(math.isfinite(getattr(msg, n)) for n in names):
             return False
+        limits = TELEMETRY_LIMITS.get(kind)
+        if limits is not None and not plausible(
+            {n: float(getattr(msg, n, 0.0)) for n in limits}, limits
+        ):
+            self.implausible_at(now_s)
+            return False
         handler = getattr(self, "_on_" + kind.lower(), None)
         if handler is not None:
             handler(msg, now_s)
         return True
+
+    def implausible_at(self, now_s: float) -> None:
+        """Count a message dropped as implausible, received at ``now_s``."""
+        self.implausible += 1
+        self.t_implausible_s = now_s
 
     def _on_heartbeat(self, msg: Any, now_s: float) -> None:
         self.heartbeat(int(msg.base_mode), int(msg.custom_mode), now_s)
@@ -392,4 +435,6 @@ def snapshot(
         setpoint_v_body=setpoint.v_body,
         setpoint_yaw_rate_rad_s=setpoint.yaw_rate_rad_s,
         counters=counters,
+        implausible_age_s=now_s - st.t_implausible_s,
+        implausible=st.implausible,
     )

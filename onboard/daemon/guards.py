@@ -74,6 +74,10 @@ class GuardInput:
     """Seconds since a core tick last raised (``inf``: never)."""
     clock_fault: Alarm | None = None
     """``clock_jump`` / ``clock_resync`` while the daemon's clock reports one."""
+    estimate_healthy: bool = True
+    """The core's own estimates are finite and within the physical ranges (its last status)."""
+    implausible_telemetry_age_s: float = math.inf
+    """Seconds since the autopilot last sent finite but impossible telemetry (``inf``: never)."""
     altitude_m: float = 0.0
     north_m: float = 0.0
     east_m: float = 0.0
@@ -182,6 +186,25 @@ class FiniteSetpointGuard:
         return Verdict(Action.HOLD, (Alarm.ESTIMATE_DIVERGING.value,))
 
 
+class EstimateHealthGuard:
+    """Hold while the vehicle's picture of itself cannot be trusted: ``estimate_nonfinite``
+    when the core's estimates are NaN/inf or beyond the physical ranges, and
+    ``telemetry_implausible`` for ``window_s`` after the autopilot sent impossible values
+    (dropped by :meth:`onboard.autopilot.states.TelemetryState.apply`; a corrupted autopilot
+    keeps sending them, so the hold lasts while it does)."""
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+
+    def check(self, inp: GuardInput) -> Verdict:
+        alarms = []
+        if not inp.estimate_healthy:
+            alarms.append(Alarm.ESTIMATE_NONFINITE.value)
+        if inp.implausible_telemetry_age_s <= self.window_s:
+            alarms.append(Alarm.TELEMETRY_IMPLAUSIBLE.value)
+        return Verdict(Action.HOLD, tuple(alarms)) if alarms else PASS
+
+
 class AltitudeBandGuard:
     """Bound the down velocity so the vehicle stays between ``min_alt_m`` and ``max_alt_m``
     above the autopilot's origin (:func:`onboard.control.envelope.bound_down_velocity`):
@@ -264,6 +287,7 @@ def daemon_guards(
     min_alt_m: float,
     max_alt_m: float,
     max_radius_m: float,
+    implausible_window_s: float = 1.0,
     extra_checks: Sequence[Guard] = (),
 ) -> Guards:
     """The onboard daemon's guards, in its order."""
@@ -277,6 +301,7 @@ def daemon_guards(
             ClockFaultGuard(),
             PilotTakeoverGuard(),
             FiniteSetpointGuard(),
+            EstimateHealthGuard(implausible_window_s),
             *extra_checks,
         ),
         envelope=(AltitudeBandGuard(min_alt_m, max_alt_m), FenceGuard(max_radius_m)),

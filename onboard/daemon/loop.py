@@ -30,10 +30,16 @@ from dataclasses import dataclass, field
 import msgspec
 import numpy as np
 
-from messages.agent import OwnMeasurements, Setpoint, VehicleStatus
+from messages.agent import AgentStatus, OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand
-from messages.limits import STAMP_FUTURE_MAX_S
+from messages.limits import (
+    ANGLE_MAX_RAD,
+    DIMENSIONLESS_MAX,
+    INV_DISTANCE_MAX_INV_M,
+    POSITION_MAX_M,
+    STAMP_FUTURE_MAX_S,
+)
 from messages.vocabulary import Alarm
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
@@ -113,6 +119,49 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
     )
 
 
+def _finite_within(x: float | None, limit: float) -> bool:
+    return x is not None and math.isfinite(x) and abs(x) <= limit
+
+
+def publishable_agent_status(a: AgentStatus) -> tuple[AgentStatus, bool]:
+    """The core's status made publishable, and whether it was healthy (issue 23: a core with
+    NaN estimates published nothing, since the codec refuses NaN, so the ground station saw a
+    frozen row, never the cause). Estimates that are non-finite or beyond the physical ranges
+    of :mod:`messages.limits` become neutral values: position and yaw 0, no inverse distance,
+    ``E`` at its maximum (not converged), ``lambdabar`` 0, no rigidity eigenvalue; the daemon
+    adds ``estimate_nonfinite`` to the status's alarms."""
+    healthy = (
+        all(_finite_within(x, POSITION_MAX_M) for x in a.p_hat_ned)
+        and _finite_within(a.yaw_hat_rad, ANGLE_MAX_RAD)
+        and all(_finite_within(x, INV_DISTANCE_MAX_INV_M) for x in a.chi_hat_inv_m.values())
+        and _finite_within(a.e_index, DIMENSIONLESS_MAX)
+        and _finite_within(a.lambda_bar, DIMENSIONLESS_MAX)
+        and (
+            a.rigidity_eigenvalue is None
+            or _finite_within(a.rigidity_eigenvalue, DIMENSIONLESS_MAX)
+        )
+    )
+    if healthy:
+        return a, True
+    p = tuple(x if _finite_within(x, POSITION_MAX_M) else 0.0 for x in a.p_hat_ned)
+    return msgspec.structs.replace(
+        a,
+        p_hat_ned=p,
+        yaw_hat_rad=a.yaw_hat_rad if _finite_within(a.yaw_hat_rad, ANGLE_MAX_RAD) else 0.0,
+        chi_hat_inv_m={
+            j: x for j, x in a.chi_hat_inv_m.items() if _finite_within(x, INV_DISTANCE_MAX_INV_M)
+        },
+        e_index=a.e_index if _finite_within(a.e_index, DIMENSIONLESS_MAX) else DIMENSIONLESS_MAX,
+        lambda_bar=a.lambda_bar if _finite_within(a.lambda_bar, DIMENSIONLESS_MAX) else 0.0,
+        rigidity_eigenvalue=(
+            a.rigidity_eigenvalue
+            if _finite_within(a.rigidity_eigenvalue, DIMENSIONLESS_MAX)
+            else None
+        ),
+        scale_converged=False,
+    ), False
+
+
 @dataclass
 class DaemonState:
     """What the two threads share (guarded by ``lock``)."""
@@ -178,6 +227,7 @@ class AgentDaemon:
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
         self._step_error_s = -math.inf
+        self._estimate_healthy = True
         lim = fleet.config.limits
         self.guards = daemon_guards(
             self._rigid_without,
@@ -326,12 +376,18 @@ class AgentDaemon:
             dropped[f"core_{reason}"] = count
         for reason, count in signing_rejections(tel.counters).items():
             dropped[f"mavlink_{reason}"] = count
+        if tel.implausible:
+            dropped["mavlink_implausible"] = tel.implausible
         speed = math.sqrt(sum(v * v for v in tel.v_ned))
+        agent, self._estimate_healthy = publishable_agent_status(self.core.status())
+        alarms = list(self._alarms)
+        if not self._estimate_healthy and Alarm.ESTIMATE_NONFINITE not in alarms:
+            alarms.append(Alarm.ESTIMATE_NONFINITE.value)  # the guard holds from the next tick
         return VehicleStatus(
             sender=self.id,
             seq=self._status_seq,
             stamp_s=now_s,
-            agent=self.core.status(),
+            agent=agent,
             autopilot_mode=tel.mode,
             armed=tel.armed,
             in_air=tel.in_air,
@@ -340,7 +396,7 @@ class AgentDaemon:
             battery_pct=tel.battery_remaining_pct,
             heartbeat_age_s=min(tel.heartbeat_age_s, 1e6),
             phase=self.state.get(),
-            alarms=list(self._alarms),
+            alarms=alarms,
             dropped=dropped,
         )
 
@@ -366,9 +422,14 @@ class AgentDaemon:
             if tel.t_boot_s is not None:
                 self.clock.observe(tel.t_boot_s)  # the simulator's autopilot counts sim time
             now_s = self._now()
-            if now_s is None or not tel.connected:
-                continue
+            if now_s is None:
+                continue  # no time yet: nothing can be stamped
             step += 1
+            if not tel.connected:  # the core waits; the ground station still hears why
+                self._alarms = [Alarm.AUTOPILOT_LOST.value]
+                if step % status_every == 0:
+                    self._publish_status(now_s, tel)
+                continue
             try:
                 self._handle_commands()
                 self._update_peers(now_s)
@@ -384,14 +445,18 @@ class AgentDaemon:
                 outbox = []
                 self._step_failed("step_exception", now_s, exc)
             if step % status_every == 0:
-                try:
-                    status = self._status(now_s, tel)
-                    self.peers.publish_status(status)
-                    if self.on_status is not None:
-                        self.on_status(status)
-                except Exception as exc:
-                    self._step_failed("status_exception", now_s, exc)
+                self._publish_status(now_s, tel)
         self._shutdown()
+
+    def _publish_status(self, now_s: float, tel: Telemetry) -> None:
+        """Publish the status (issue 23: it always goes out, with the reason in its alarms)."""
+        try:
+            status = self._status(now_s, tel)
+            self.peers.publish_status(status)
+            if self.on_status is not None:
+                self.on_status(status)
+        except Exception as exc:
+            self._step_failed("status_exception", now_s, exc)
 
     def _step_failed(self, reason: str, now_s: float, exc: Exception) -> None:
         """An exception escaped one tick: count it (``dropped``), log the first traceback, hold
@@ -501,6 +566,8 @@ class AgentDaemon:
             bearings_age_s=self.bearings.age_s(now_s),
             step_error_age_s=now_s - self._step_error_s,
             clock_fault=self.clock.fault(),
+            estimate_healthy=self._estimate_healthy,
+            implausible_telemetry_age_s=tel.implausible_age_s,
             altitude_m=tel.altitude_m,
             north_m=tel.north_m,
             east_m=tel.east_m,

@@ -281,3 +281,32 @@ def test_stream_group_fallback_never_asks_for_every_stream():
     assert ungrouped == ["EXTENDED_SYS_STATE"]
     assert "EXTENDED_SYS_STATE" not in DATA_STREAM_GROUP
     assert stream_groups(["BATTERY_STATUS"], {"BATTERY_STATUS": 0.5}) == ({12: 1}, [])
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        dialect.MAVLink_local_position_ned_message(1100, 0, 0, -1e6, 0, 0, 0),  # 1000 km up
+        dialect.MAVLink_local_position_ned_message(1100, 0, 0, -5.0, 1e4, 0, 0),  # 10 km/s
+        dialect.MAVLink_local_position_ned_message(1100, 2e5, 0, -5.0, 0, 0, 0),
+        dialect.MAVLink_attitude_message(1100, 0.0, 0.0, 0.5, 0, 0, 100.0),  # 100 rad/s yaw rate
+        dialect.MAVLink_attitude_message(1100, 0.0, 40.0, 0.5, 0, 0, 0.0),
+    ],
+)
+def test_fold_drops_implausible_telemetry_unchanged_and_remembers_when(msg):
+    """Issue 23 defect 8: finite but impossible telemetry once passed and kept the daemon's
+    estimates 100-150 % off."""
+    st = TelemetryState(flavour=Flavour.PX4)
+    assert st.apply(dialect.MAVLink_attitude_message(1000, 0.0, 0.0, 0.5, 0, 0, 0.2), 1.0)
+    assert st.apply(dialect.MAVLink_local_position_ned_message(1000, 1, 2, -5.0, 0.5, 0, 0), 1.0)
+    before = (st.altitude_m, st.north_m, st.v_ned, st.yaw_rate_rad_s, st.pitch_rad, st.t_boot_s)
+    assert not st.apply(msg, 2.0)
+    after = (st.altitude_m, st.north_m, st.v_ned, st.yaw_rate_rad_s, st.pitch_rad, st.t_boot_s)
+    assert after == before
+    assert st.implausible == 1 and st.t_implausible_s == 2.0
+    zero = saturate_setpoint((0, 0, 0), 0, 1, 1, 1)
+    tel = snapshot(st, 2.5, LinkConfig(), 1, StreamState.IDLE, zero, LinkCounters())
+    assert tel.implausible == 1 and tel.implausible_age_s == pytest.approx(0.5)
+    # the edge of the ranges still passes: 100 m/s, 20 rad/s
+    assert st.apply(dialect.MAVLink_local_position_ned_message(1200, 0, 0, -5.0, 100.0, 0, 0), 3.0)
+    assert st.apply(dialect.MAVLink_attitude_message(1200, 0.0, 0.0, 0.5, 0, 0, -20.0), 3.0)

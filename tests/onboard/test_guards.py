@@ -15,6 +15,7 @@ from onboard.daemon.guards import (
     AltitudeBandGuard,
     ClockFaultGuard,
     ClockSkewGuard,
+    EstimateHealthGuard,
     FenceGuard,
     FiniteSetpointGuard,
     GuardInput,
@@ -176,3 +177,16 @@ def test_decide_applies_both_bounds_when_flying_only():
     assert d.setpoint.yaw_rate_rad_s == 0.2
     holding = decide(_guards(), dataclasses.replace(inp, phase="holding"))
     assert holding.alarms == () and holding.setpoint == inp.setpoint
+
+
+def test_estimate_health_holds_on_nonfinite_estimates_and_implausible_telemetry():
+    """Issue 23 defect 8: corrupted autopilot telemetry or NaN estimates hold with an alarm."""
+    g = EstimateHealthGuard(window_s=1.0)
+    assert g.check(HEALTHY).action is Action.PASS
+    v = g.check(_with(estimate_healthy=False))
+    assert v.action is Action.HOLD and v.alarms == ("estimate_nonfinite",)
+    v = g.check(_with(implausible_telemetry_age_s=0.4))
+    assert v.action is Action.HOLD and v.alarms == ("telemetry_implausible",)
+    assert g.check(_with(implausible_telemetry_age_s=1.5)).action is Action.PASS
+    d = decide(_guards(), _with(implausible_telemetry_age_s=0.1, setpoint=Setpoint((2, 0, 0), 0)))
+    assert d.hold and d.setpoint.v_body == (0.0, 0.0, 0.0)
