@@ -26,6 +26,7 @@ from typing import Protocol
 
 from messages.agent import Setpoint
 from messages.vocabulary import Alarm, alarm_text
+from onboard.autopilot.base import Flavour
 from onboard.control.envelope import bound_down_velocity, bound_horizontal_velocity
 
 ZERO_SETPOINT = Setpoint(v_body=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0)
@@ -167,13 +168,46 @@ class ClockFaultGuard:
 
 
 class PilotTakeoverGuard:
-    """``failsafe`` while the autopilot has the vehicle (phase ``pilot``: it left
-    OFFBOARD/GUIDED and the link stopped streaming, so no setpoint goes out anyway)."""
+    """While the autopilot has the vehicle (it left OFFBOARD/GUIDED and the link stopped
+    streaming, so no setpoint goes out anyway): ``pilot_takeover`` in phase ``pilot``,
+    ``failsafe`` in phase ``failsafe`` (:func:`takeover_kind` told them apart)."""
 
     def check(self, inp: GuardInput) -> Verdict:
         if inp.phase == "pilot":
+            return Verdict(alarms=(Alarm.PILOT_TAKEOVER.value,))
+        if inp.phase == "failsafe":
             return Verdict(alarms=(Alarm.FAILSAFE.value,))
         return PASS
+
+
+PILOT_MODES: dict[Flavour, frozenset[str]] = {
+    Flavour.PX4: frozenset({"MANUAL", "STABILIZED", "ACRO", "RATTITUDE", "ALTCTL", "POSCTL"}),
+    Flavour.ARDUPILOT: frozenset(
+        {"STABILIZE", "ACRO", "ALT_HOLD", "LOITER", "POSHOLD", "SPORT", "DRIFT", "FLOWHOLD"}
+    ),
+}
+"""Modes a pilot flies with the sticks. An autopilot's own failsafe never picks them without
+an RC link: it holds, lands or returns (PX4 AUTO.LOITER / AUTO.LAND / AUTO.RTL, ArduPilot
+BRAKE / LAND / RTL)."""
+STALL_MEMORY_S = 5.0
+"""A stall of the daemon or a lost autopilot link this recent explains a mode change."""
+
+
+def takeover_kind(
+    flavour: Flavour | None, mode: str, since_stall_s: float, since_link_lost_s: float
+) -> str:
+    """Who took the vehicle out of OFFBOARD/GUIDED: ``"pilot"`` or ``"failsafe"``.
+
+    A failsafe when the daemon stalled (a tick gap, e.g. SIGSTOP: PX4 fails over after
+    ``COM_OF_LOSS_T``) or the autopilot link was lost (a restarted simulator) within
+    :data:`STALL_MEMORY_S`, or when the new mode is no pilot mode (:data:`PILOT_MODES`: a
+    hold, land or return mode, or one a forged HEARTBEAT shows); a pilot only when a healthy
+    stream was replaced by a stick mode."""
+    if since_stall_s <= STALL_MEMORY_S or since_link_lost_s <= STALL_MEMORY_S:
+        return "failsafe"
+    if flavour is not None and mode in PILOT_MODES[flavour]:
+        return "pilot"
+    return "failsafe"
 
 
 class FiniteSetpointGuard:

@@ -43,10 +43,18 @@ from messages.limits import (
 from messages.vocabulary import Alarm
 from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
+from onboard.autopilot.states import HOLD_MODE
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
-from onboard.daemon.guards import ZERO_SETPOINT, GuardInput, daemon_guards, decide
+from onboard.daemon.guards import (
+    PILOT_MODES,
+    ZERO_SETPOINT,
+    GuardInput,
+    daemon_guards,
+    decide,
+    takeover_kind,
+)
 from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peer_clock import PeerClockCheck
@@ -58,7 +66,15 @@ from onboard.rigidity.bearing import ibr_r3s1
 
 log = logging.getLogger(__name__)
 
-PHASES = ("connecting", "waiting", "ready", "flying", "holding", "pilot", "landing", "stopped")
+PHASES = (
+    "connecting", "waiting", "ready", "flying", "holding", "pilot", "failsafe", "landing",
+    "stopped",
+)  # fmt: skip
+"""``pilot``: a pilot took the vehicle (a stick mode); ``failsafe``: the autopilot left
+OFFBOARD/GUIDED by itself (:func:`onboard.daemon.guards.takeover_kind`)."""
+STALL_TICK_GAP_S = 1.0
+"""A gap between two core ticks this long (wall time) is a stall of the daemon (SIGSTOP, a
+frozen machine): the autopilot's offboard-loss failsafe may have acted meanwhile."""
 MAX_CORE_DT_S = 0.005
 """Longest integration step given to the core (its gains want <= 5 ms, see sim/runner.py)."""
 MIN_TICK_SPEEDUP = 0.05
@@ -228,6 +244,8 @@ class AgentDaemon:
         self._newest_frame_s = -math.inf
         self._step_error_s = -math.inf
         self._estimate_healthy = True
+        self._stall_mono = -math.inf  # when the core loop last stalled (time.monotonic)
+        self._link_lost_t = -math.inf  # when the link last reported link_lost (link clock)
         lim = fleet.config.limits
         self.guards = daemon_guards(
             self._rigid_without,
@@ -285,8 +303,18 @@ class AgentDaemon:
                     return False, detail
             action = "start"
         if action == "start":
-            if not link.telemetry().in_air:
+            tel = link.telemetry()
+            if not tel.in_air:
                 return False, "not in the air: arm and take off first"
+            if (
+                self.state.get() == "pilot"
+                and tel.flavour is not None
+                and tel.mode in PILOT_MODES[tel.flavour]
+            ):
+                return False, (
+                    f"a pilot flies the vehicle ({tel.mode}): to hand it back, switch the "
+                    f"autopilot to {HOLD_MODE[tel.flavour]}, then start"
+                )
             link.set_setpoint(ZERO_SETPOINT)
             result = link.start_velocity_control()
             if not result.ok:
@@ -409,7 +437,7 @@ class AgentDaemon:
         status_every = max(1, round(c.rates.core / c.rates.status))
         outbox = []
         step = 0
-        next_tick = time.monotonic()
+        next_tick = last_tick_mono = time.monotonic()
         while not self.stop_event.is_set():
             next_tick += self._tick_period_s()
             delay = next_tick - time.monotonic()
@@ -418,6 +446,10 @@ class AgentDaemon:
             else:
                 next_tick = time.monotonic()  # overrun: do not try to catch up
             self.metrics.tick_late_s.append(max(0.0, time.monotonic() - next_tick))
+            mono = time.monotonic()
+            if mono - last_tick_mono > STALL_TICK_GAP_S:
+                self._stall_mono = mono
+            last_tick_mono = mono
             tel = self.link.telemetry()
             if tel.t_boot_s is not None:
                 self.clock.observe(tel.t_boot_s)  # the simulator's autopilot counts sim time
@@ -536,8 +568,16 @@ class AgentDaemon:
         lost = self.lost_peers(now_s)
         skewed = self._check_peer_clocks(now_s)
         for event in self.link.events():
+            if event.kind == "link_lost":
+                self._link_lost_t = event.t_s
             if event.kind == "stream_stopped" and self.state.get() == "flying":
-                self.state.set("pilot", event.detail)
+                kind = takeover_kind(
+                    tel.flavour,
+                    tel.mode,
+                    since_stall_s=time.monotonic() - self._stall_mono,
+                    since_link_lost_s=self.link.config.clock() - self._link_lost_t,
+                )
+                self.state.set(kind, f"{event.detail} ({kind})")
         phase = self.state.get()
         decision = decide(self.guards, self._guard_input(now_s, tel, setpoint, lost, skewed, phase))
         if phase == "flying":

@@ -97,10 +97,12 @@ def test_clock_fault_is_an_alarm_not_a_hold():
     assert ClockFaultGuard().check(HEALTHY).alarms == ()
 
 
-def test_pilot_takeover_raises_failsafe():
+def test_takeover_alarm_names_who_has_the_vehicle():
     g = PilotTakeoverGuard()
-    assert g.check(_with(phase="pilot")).alarms == ("failsafe",)
+    assert g.check(_with(phase="pilot")).alarms == ("pilot_takeover",)
+    assert g.check(_with(phase="failsafe")).alarms == ("failsafe",)
     assert g.check(_with(phase="flying")).alarms == ()
+    assert g.check(_with(phase="pilot")).action is Action.PASS  # nothing is streamed anyway
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
