@@ -100,9 +100,12 @@ class VehicleStatus(Payload, tag="vehicle.status"):
     heartbeat_age_s: float
     """Age of the autopilot's last HEARTBEAT as the daemon sees it."""
     phase: str
-    """Daemon phase: connecting, waiting, ready, flying, holding, landing, stopped."""
+    """Daemon phase: connecting, waiting, ready, flying, holding, pilot (a pilot took the
+    vehicle), failsafe (the autopilot left offboard/guided control by itself), landing,
+    stopped."""
     alarms: list[str] = msgspec.field(default_factory=list)
-    """Active alarms, e.g. ``peer_lost:3``, ``peer_clock:3``, ``rigidity_lost``,
-    ``estimate_diverging``, ``failsafe``, ``altitude_floor``."""
+    """Active alarms (:class:`messages.vocabulary.Alarm`), e.g. ``peer_lost:3``,
+    ``peer_clock:3``, ``rigidity_lost``, ``estimate_diverging``, ``autopilot_lost``,
+    ``failsafe``, ``pilot_takeover``, ``altitude_floor``."""
     dropped: dict[str, int] = msgspec.field(default_factory=dict)
     """Counters of dropped input by reason (malformed, version, nonfinite, unknown_sender, ...)."""
