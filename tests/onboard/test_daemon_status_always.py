@@ -9,6 +9,7 @@ sends it."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -43,8 +44,9 @@ def _telemetry(system_id: int | None):
 class _Link:
     config = SimpleNamespace(clock=time.monotonic)
 
-    def __init__(self, connected: bool) -> None:
+    def __init__(self, connected: bool, implausible: int = 0) -> None:
         self.connected = connected
+        self.implausible = implausible
         self.setpoint_ages_s: list[float] = []
 
     def connect(self, url: str, timeout_s: float) -> None:
@@ -52,7 +54,10 @@ class _Link:
         raise LinkError("no autopilot in this test")
 
     def telemetry(self):
-        return _telemetry(1 if self.connected else None)
+        tel = _telemetry(1 if self.connected else None)
+        if self.implausible:  # the autopilot keeps sending impossible values (all dropped)
+            return dataclasses.replace(tel, implausible_age_s=0.05, implausible=self.implausible)
+        return tel
 
     def set_setpoint(self, setpoint: Setpoint, source_t=None) -> Setpoint:
         return setpoint
@@ -138,6 +143,14 @@ def test_a_daemon_with_nan_estimates_publishes_status_saying_so(tmp_path):
     assert "estimate_nonfinite" in last.alarms
     assert last.agent.p_hat_ned == (0.0, 0.0, 1.0)  # the finite part is kept
     assert not last.agent.scale_converged
+
+
+def test_implausible_autopilot_telemetry_reaches_the_status_as_alarm_and_count(tmp_path):
+    """Issue 23 defect 8 in the loop: the dropped telemetry holds the vehicle with an alarm."""
+    peers, _ = _run(tmp_path, _Link(connected=True, implausible=4))
+    last = peers.statuses[-1]
+    assert "telemetry_implausible" in last.alarms
+    assert last.dropped["mavlink_implausible"] == 4
 
 
 def test_publishable_status_keeps_a_healthy_status_as_it_is(tmp_path):
