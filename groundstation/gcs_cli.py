@@ -3,7 +3,8 @@
 * ``monitor`` — live full-screen table of every vehicle (``--once --json``: one snapshot);
 * ``arm | takeoff | land`` (autopilots, MAVLink), ``start | hold`` (agents, Zenoh), ``stop``
   (both: the emergency action) — to ``--ids 1,3`` or ``--all``, confirmed unless ``--yes``;
-* ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``.
+* ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``;
+* ``estimate --replay IN.mcap [--json]`` — paper 001's centralized EKF on a recording.
 
 Exit status: 0 success, 1 a command failed for some vehicle (or was not confirmed), 2 bad
 usage or a link that cannot be opened. Zenoh, pymavlink, mcap and matplotlib are imported
