@@ -232,8 +232,10 @@ def run_se3(cfg: Se3RunConfig = Se3RunConfig(), progress=None) -> Se3Recording:
     for k in range(steps):
         t0 = k * cfg.dt_s
         p_start, rot_start = p_w.copy(), rot_w.copy()
-        for s in range(cfg.substeps):
-            rot_w = rot_w @ so3_exp(h * true_angular_velocity(t0 + (s + 0.5) * h))
+        mid = t0 + (np.arange(cfg.substeps) + 0.5) * h
+        increments = so3_exp(h * np.stack([true_angular_velocity(t) for t in mid]))
+        for inc in increments:  # midpoint rule, one exponential per substep and agent
+            rot_w = rot_w @ inc
         t1 = t0 + cfg.dt_s
         p_w, v_w = true_positions(t1)
         # odometry: body-frame displacement and rotation over the step, per second, plus noise
