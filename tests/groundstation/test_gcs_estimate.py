@@ -38,8 +38,17 @@ def _truth(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return p, v, yaw, rate
 
 
-def _record(path, duration_s: float = 30.0, garbage: int = 3) -> None:
-    """Odometry at 25 Hz, camera frames and truth at 6.25 Hz, as a recorder writes them."""
+def _record(
+    path,
+    duration_s: float = 30.0,
+    garbage: int = 3,
+    silent_after_s: float = 1e9,
+    ghost: bool = False,
+) -> None:
+    """Odometry at 25 Hz, camera frames and truth at 6.25 Hz, as a recorder writes them.
+
+    Vehicle 3's odometry stops after ``silent_after_s``; ``ghost`` adds a bearing to vehicle 9,
+    which sends nothing."""
     rec = Recorder(path, "alpha", tlog=False)
     dt = 0.04
     for k in range(int(duration_s / dt)):
@@ -54,13 +63,16 @@ def _record(path, duration_s: float = 30.0, garbage: int = 3) -> None:
                 sender=i, seq=k, stamp_s=t, v_body=tuple(vb), yaw_rate_rad_s=rate[a],
                 yaw_rad=yaw[a],
             )  # fmt: skip
-            rec.zenoh_sample(f"bf/alpha/{i}/peer/peer.motion", encode(motion), wall)
+            if i != 3 or t < silent_after_s:
+                rec.zenoh_sample(f"bf/alpha/{i}/peer/peer.motion", encode(motion), wall)
             if k % 4 == 0:
                 others = [b for b in range(3) if b != a]
                 beta = [r.T @ (p[b] - p[a]) / np.linalg.norm(p[b] - p[a]) for b in others]
                 frame = BearingShare(
-                    sender=i, seq=k, stamp_s=t, yaw_rad=yaw[a], targets=[IDS[b] for b in others],
-                    beta_body=[tuple(float(x) for x in b) for b in beta],
+                    sender=i, seq=k, stamp_s=t, yaw_rad=yaw[a],
+                    targets=[IDS[b] for b in others] + ([9] if ghost else []),
+                    beta_body=[tuple(float(x) for x in b) for b in beta]
+                    + ([(1.0, 0.0, 0.0)] if ghost else []),
                 )  # fmt: skip
                 rec.zenoh_sample(f"bf/alpha/{i}/peer/peer.bearings", encode(frame), wall)
             if k % 4 == 0:
@@ -103,3 +115,17 @@ def test_replay_needs_a_recording_and_says_live_mode_is_missing(tmp_path):
     assert json.loads(res.stdout.strip().splitlines()[-1])["skipped"] == {
         "fewer_than_2_vehicles_with_odometry": 1
     }
+
+
+def test_silent_vehicle_and_unknown_targets_are_counted_not_fatal(tmp_path):
+    path = tmp_path / "gappy.mcap"
+    _record(path, duration_s=4.0, garbage=0, silent_after_s=2.0, ghost=True)
+    res = CliRunner().invoke(app, ["gcs", "estimate", "--replay", str(path), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert out["frames"] == 3 * 25
+    # last odometry of vehicle 3 at 1.96 s: stale (> 0.5 s) at the frame times 2.56..3.84 s,
+    # 9 predictions (one per frame time)
+    assert out["skipped"]["stale_odometry"] == 9
+    assert out["skipped"]["bearing_to_unknown_vehicle"] == 3 * 25
+    assert all(np.isfinite(v).all() for v in out["p_ref_m"].values())
