@@ -23,7 +23,7 @@ from onboard.rigidity.angle import (
     weighted_angle_rigidity_eigenvalue,
 )
 from onboard.rigidity.bearing import ibr_r3s1, ibr_se3
-from onboard.rigidity.observability import r3s1_observability_report
+from onboard.rigidity.observability import dbom_fields_rank, r3s1_observability_report
 from onboard.rigidity.weights import SensingModel
 
 VELOCITY_SEED = 0
@@ -76,6 +76,12 @@ class CheckReport(msgspec.Struct):
     rank_observability_static: int
     rank_observability_moving: int
     expected_rank_observability_moving: int
+    rank_dbom_fields: int
+    """Rank of paper 001's DBOM with one row block per input vector field (eq. 13c, 16), at the
+    file's poses with level attitudes; independent of the velocities (``onboard/rigidity/
+    observability.py:dbom_fields_matrix``). The ``rank_observability_*`` keys differentiate the
+    one motion in ``velocities`` instead."""
+    expected_rank_dbom_fields: int
     velocities: str
     degenerate_vertices: list[DegenerateVertex]
     critical_edges: list[tuple[int, int]]
@@ -175,7 +181,9 @@ def analyze(formation: Formation) -> CheckReport:
         obs = r3s1_observability_report(p, yaw, u_body, edges)
         obs_static, obs_moving = obs.static_rank, obs.dynamic_rank
         obs_expected, observable = obs.expected_dynamic_rank, obs.scale_observable
+        rank_fields = dbom_fields_rank(p, rot_z(yaw), edges)
     else:
+        rank_fields = 0
         obs_static = obs_moving = 0
         obs_expected, observable = 4 * n - 4, False
     pairs = reciprocal_pairs(edges)
@@ -221,6 +229,8 @@ def analyze(formation: Formation) -> CheckReport:
         rank_observability_static=obs_static,
         rank_observability_moving=obs_moving,
         expected_rank_observability_moving=obs_expected,
+        rank_dbom_fields=rank_fields,
+        expected_rank_dbom_fields=6 * n - 6,
         velocities=velocities,
         degenerate_vertices=_degenerate_vertices(formation, edges),
         critical_edges=_critical_edges(formation, edges) if r3s1_rigid else [],

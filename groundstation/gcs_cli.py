@@ -3,7 +3,8 @@
 * ``monitor`` — live full-screen table of every vehicle (``--once --json``: one snapshot);
 * ``arm | takeoff | land`` (autopilots, MAVLink), ``start | hold`` (agents, Zenoh), ``stop``
   (both: the emergency action) — to ``--ids 1,3`` or ``--all``, confirmed unless ``--yes``;
-* ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``.
+* ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``;
+* ``estimate --replay IN.mcap [--json]`` — paper 001's centralized EKF on a recording.
 
 Exit status: 0 success, 1 a command failed for some vehicle (or was not confirmed), 2 bad
 usage or a link that cannot be opened. Zenoh, pymavlink, mcap and matplotlib are imported
@@ -526,3 +527,37 @@ def plot(
     out.mkdir(parents=True, exist_ok=True)
     for path in plot_all(series, out):
         typer.echo(str(path))
+
+
+@gcs_app.command("estimate")
+def estimate(
+    replay: Annotated[
+        Path | None, typer.Option("--replay", help="Run on a gcs record MCAP file.")
+    ] = None,
+    json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    bearing_noise_deg: Annotated[
+        float, typer.Option(help="Bearing noise the filter assumes (deg, 1 sigma).")
+    ] = 1.0,
+) -> None:
+    """Paper 001's centralized EKF on the team's bearings and odometry (issue 26): final scale
+    and, with truth in the recording, each vehicle's pose error. Only --replay for now."""
+    import math
+
+    from groundstation.gcs.ekf_replay import ReplayConfig, replay_estimate
+
+    if replay is None:
+        raise _fail("live estimation over Zenoh is not implemented yet: use --replay FILE.mcap")
+    if not (math.isfinite(bearing_noise_deg) and bearing_noise_deg > 0):
+        raise _fail("--bearing-noise-deg must be a positive number")
+    _check_recording(replay)
+    result = replay_estimate(
+        replay, ReplayConfig(bearing_sigma_rad=math.radians(bearing_noise_deg))
+    )
+    summary = result.summary()
+    if json:
+        typer.echo(jsonlib.dumps(summary))
+    else:
+        for k, v in summary.items():
+            typer.echo(f"{k:>20}: {v}")
+    if result.state is None:
+        raise typer.Exit(EXIT_FAILED)

@@ -13,8 +13,9 @@ import typer
 
 from sim.rigidity_scenarios import RIGIDITY_SCENARIOS
 from sim.scenarios import SCENARIOS
+from sim.se3_runner import SE3_SCENARIOS
 
-ALL_SCENARIOS = [*SCENARIOS, *RIGIDITY_SCENARIOS]
+ALL_SCENARIOS = [*SCENARIOS, *RIGIDITY_SCENARIOS, *SE3_SCENARIOS]
 
 
 def scenario(
@@ -37,8 +38,9 @@ def scenario(
         ),
     ] = "cores",
 ) -> None:
-    """Reproduce a scale-from-motion case of paper 000 (N = 6, 2 ms clock, 50 Hz bearings) or a
-    rigidity-maintenance simulation of paper 003 (rigidity-*)."""
+    """Reproduce a scale-from-motion case of paper 000 (N = 6, 2 ms clock, 50 Hz bearings), a
+    rigidity-maintenance simulation of paper 003 (rigidity-*) or paper 001's centralized SE(3)
+    EKF (ekf-se3: 60 s by default, bearing noise 1 deg unless given)."""
     import math
 
     from rich.console import Console
@@ -52,7 +54,7 @@ def scenario(
             f"unknown scenario {name!r}; choose from {', '.join(ALL_SCENARIOS)}"
         )
     if duration is None:
-        duration = 60.0 if name in RIGIDITY_SCENARIOS else 20.0
+        duration = 60.0 if name in RIGIDITY_SCENARIOS or name in SE3_SCENARIOS else 20.0
     if not (math.isfinite(duration) and duration > 0):
         raise typer.BadParameter("duration must be a positive number of seconds")
     if not (math.isfinite(bearing_noise_deg) and bearing_noise_deg >= 0):
@@ -66,6 +68,9 @@ def scenario(
     if engine == "compiled" and name in RIGIDITY_SCENARIOS:
         raise typer.BadParameter("the compiled engine runs the scale-* scenarios only")
     console = Console(stderr=True)
+    if name in SE3_SCENARIOS:
+        _run_se3(name, seed, duration, bearing_noise_deg, loss, latency, plot, json, console)
+        return
     with Progress(
         TextColumn(f"[bold]{name}[/] seed {seed}"),
         TextColumn("{task.description}"),
@@ -118,6 +123,25 @@ def scenario(
             from sim.plots import plot_recording
 
             result["plots"] = [str(p) for p in plot_recording(rec, plot, name)]
+    _print(result, json, console)
+
+
+def _run_se3(name, seed, duration, noise_deg, loss, latency, plot, json, console) -> None:
+    """``ekf-se3``: :func:`sim.se3_runner.run_se3` (no message loss or latency: centralized)."""
+    import math
+
+    from sim.se3_runner import Se3RunConfig, run_se3
+
+    if loss or latency:
+        raise typer.BadParameter("ekf-se3 is centralized: --loss and --latency do not apply")
+    noise_rad = math.radians(noise_deg) if noise_deg > 0 else Se3RunConfig.bearing_noise_rad
+    rec = run_se3(Se3RunConfig(duration_s=duration, seed=seed, bearing_noise_rad=noise_rad))
+    result: dict[str, object] = {"scenario": name, "seed": seed, "duration_s": duration}
+    result.update(rec.summary())
+    if plot is not None:
+        from sim.se3_plots import plot_se3
+
+        result["plots"] = [str(p) for p in plot_se3(rec, plot, name)]
     _print(result, json, console)
 
 

@@ -300,3 +300,55 @@ def scale_observable_moving(
     itself rather than one particular motion.
     """
     return r3s1_observability_report(p_ned, yaw_rad, u_body, edges, yaw_rate).scale_observable
+
+
+# ---------------------------------------------------------------------------------------------
+# The paper's DBOM: one row block per input vector field (paper 001 eq. 13c, 16, 27-31)
+# ---------------------------------------------------------------------------------------------
+#
+# ``dynamic_observability_matrix`` above differentiates ONE first-order Lie derivative: the one
+# along the motion actually flown, ``f = sum_i (v_i g_v_i + w_i g_w_i)``; its rank depends on
+# the velocities (zero or common velocities leave the scale unobservable). Paper 001 instead
+# stacks, for every input vector field ``g_v_ik``, ``g_w_ik`` (agent ``i``, axis ``k``; eq. 2,
+# 13c), the gradient of ``L_g beta`` as its own row block. That matrix does not depend on the
+# inputs: it tells whether SOME motion makes the scale observable (rank ``6N - 6``), not whether
+# the motion flown does. Since ``L_f`` is linear in ``f``, every row of the motion matrix is a
+# combination of the field matrix's rows (tests/onboard/test_dbom_fields.py), so its rank is
+# never larger. The field gradients here are the full ones (with the ``K_ij betadot`` terms
+# that eq. 24-26 set aside and eq. 27-31 leave out); by eq. 26 the rank is the same.
+
+
+def dbom_fields_matrix(p_ned: ArrayLike, rot_ned_body: ArrayLike, edges: ArrayLike) -> FloatArray:
+    """Paper 001's DBOM (eq. 16 with the fields of eq. 13c), ``(3E (1 + 6N), 6N)``.
+
+    Rows: ``R~_A`` (the SE(3) rigidity matrix, ``3E`` rows), then for ``i = 0..N-1``, ``k = 0..2``
+    the gradient of ``L_{g_v_ik} beta`` (``3E`` rows each), then the same for ``g_w_ik``.
+    ``L_{g_v_ik} beta`` is :func:`bearing_rates` with the unit body velocity ``e_k`` on agent
+    ``i`` and every other input zero (likewise ``g_w_ik`` with a unit angular rate). Columns as
+    :func:`onboard.rigidity.bearing.se3_rigidity_matrix`. Independent of the inputs.
+    """
+    p = _check_positions(p_ned, (3,))
+    n = len(p)
+    rot = _check_rotations(rot_ned_body, n)
+    e = _check_edges(edges, n, p)
+    blocks = [se3_rigidity_matrix(p, rot, e)]
+    zeros = np.zeros((n, 3))
+    for angular in (False, True):
+        for i in range(n):
+            for k in range(3):
+                unit = zeros.copy()
+                unit[i, k] = 1.0
+                v, w = (zeros, unit) if angular else (unit, zeros)
+                blocks.append(bearing_rate_gradient(p, rot, v, e, w))
+    return np.vstack(blocks)
+
+
+def dbom_fields_rank(
+    p_ned: ArrayLike, rot_ned_body: ArrayLike, edges: ArrayLike, rtol: float = RANK_RTOL
+) -> int:
+    """Rank of :func:`dbom_fields_matrix` (``R~_A`` and the field blocks each scaled to unit
+    spectral norm, as :func:`observability_rank_report`). Generic rigid frameworks: ``6N - 6``
+    (paper 001 sec. III-C, ``N = 3``: 12); only translations and global rotations remain."""
+    matrix = dbom_fields_matrix(p_ned, rot_ned_body, edges)
+    n_static = se3_rigidity_matrix(p_ned, rot_ned_body, edges).shape[0]
+    return _normalized_rank(matrix[:n_static], matrix[n_static:], rtol)

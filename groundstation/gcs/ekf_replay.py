@@ -1,0 +1,201 @@
+"""Paper 001's centralized EKF on a recording: ``bearingflock gcs estimate --replay FILE.mcap``.
+
+Reads the Zenoh samples a ``gcs record`` file holds (:func:`groundstation.gcs.record.read_recording`):
+every vehicle's odometry (``peer.motion``: body velocity and yaw rate, :class:`messages.peer.MotionShare`)
+and camera frames (``peer.bearings``: body-frame bearings, :class:`messages.peer.BearingShare`),
+and the simulator's ``truth`` when present (the sample nearest the final estimate's time). The vehicles are ``R^3 x S^1`` multicopters (the
+bearings are levelled, the rates are yaw rates), a special case of the filter's ``SE(3)``
+model with ``w = (0, 0, yaw rate)``. The vehicle with the lowest id is the reference (it moves:
+relative kinematics, :mod:`onboard.estimation.se3_ekf`).
+
+Processing, in the order of the samples' ``stamp_s``: at each camera frame the filter predicts
+from the previous frame with each vehicle's latest odometry (zero-order hold) and updates with
+the frame's bearings. Bad input is counted and skipped: undecodable samples, bearings that are
+not unit vectors or name a vehicle that never sent odometry, odometry older than ``stale_s``
+(that vehicle's inputs are taken as zero for the step, with a growing uncertainty).
+
+The prior knows nothing: the vehicles on a ring of radius ``prior_radius_m`` about the
+reference, level, with standard deviations ``prior_sigma_p_m`` and ``prior_sigma_theta_rad``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from groundstation.gcs.record import ZENOH_ENCODING, read_recording
+from groundstation.gcs.schemas import decode_sample
+from messages.peer import BearingShare, MotionShare
+from messages.sim import Truth
+from onboard.estimation.se3_ekf import Se3EkfState, initial_state, predict, update
+from onboard.geometry import FloatArray, rot_z
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """Filter settings for a replay."""
+
+    bearing_sigma_rad: float = math.radians(1.0)
+    velocity_sigma_m_s: float = 0.1
+    rate_sigma_rad_s: float = 0.02
+    stale_s: float = 0.5
+    stale_velocity_sigma_m_s: float = 2.0
+    prior_radius_m: float = 3.0
+    prior_sigma_p_m: float = 3.0
+    prior_sigma_theta_rad: float = 1.0
+
+
+@dataclass
+class ReplayResult:
+    """What the replay found: the final estimate, the counters and, with truth, the errors."""
+
+    ids: list[int]
+    state: Se3EkfState | None
+    frames: int = 0
+    counts: dict[str, int] = field(default_factory=dict)
+    duration_s: float = 0.0
+    truth: dict[int, tuple[FloatArray, float]] = field(default_factory=dict)
+    truth_age_s: float = 0.0
+    """Largest time between the final estimate and the truth sample compared with it."""
+
+    def summary(self) -> dict[str, object]:
+        """``--json``: per-vehicle estimate in the reference's frame, distances, errors."""
+        out: dict[str, object] = {
+            "vehicles": self.ids,
+            "reference": self.ids[0] if self.ids else None,
+            "frames": self.frames,
+            "duration_s": self.duration_s,
+            "skipped": dict(sorted(self.counts.items())),
+        }
+        if self.state is None:
+            return out
+        p_all = np.vstack([np.zeros((1, 3)), self.state.p_ref])
+        out["p_ref_m"] = {str(i): [float(x) for x in p_all[k]] for k, i in enumerate(self.ids)}
+        pairs = [(a, b) for a in range(len(self.ids)) for b in range(a + 1, len(self.ids))]
+        d_est = np.array([np.linalg.norm(p_all[a] - p_all[b]) for a, b in pairs])
+        out["distances_m"] = {
+            f"{self.ids[a]}-{self.ids[b]}": float(d) for (a, b), d in zip(pairs, d_est, strict=True)
+        }
+        if all(i in self.truth for i in self.ids):
+            p_true_ref, yaw_rel = self._truth_in_reference()
+            d_true = np.array([np.linalg.norm(p_true_ref[a] - p_true_ref[b]) for a, b in pairs])
+            out["truth_age_s"] = self.truth_age_s
+            out["final_scale"] = float(np.sum(d_est * d_true) / np.sum(d_true**2))
+            out["scale_error"] = float(np.max(np.abs(d_est / d_true - 1.0)))
+            err = np.linalg.norm(p_all - p_true_ref, axis=1)
+            rot_err = [
+                float(
+                    np.degrees(
+                        np.arccos(np.clip((np.trace(rot_z(y).T @ r) - 1.0) / 2.0, -1.0, 1.0))
+                    )
+                )
+                for y, r in zip(yaw_rel[1:], self.state.rot_ref_body, strict=True)
+            ]
+            out["position_error_m"] = {str(i): float(e) for i, e in zip(self.ids, err, strict=True)}
+            out["rotation_error_deg"] = {
+                str(i): e for i, e in zip(self.ids[1:], rot_err, strict=True)
+            }
+        return out
+
+    def _truth_in_reference(self) -> tuple[FloatArray, FloatArray]:
+        p = np.array([self.truth[i][0] for i in self.ids])
+        yaw = np.array([self.truth[i][1] for i in self.ids])
+        r0 = rot_z(yaw[0])
+        return (p - p[0]) @ r0, yaw - yaw[0]
+
+
+def _count(counts: dict[str, int], word: str) -> None:
+    counts[word] = counts.get(word, 0) + 1
+
+
+def replay_estimate(path: str | Path, cfg: ReplayConfig = ReplayConfig()) -> ReplayResult:
+    """Run the filter over a recording (module doc). Raises ``NotMcapError`` for a non-MCAP."""
+    counts: dict[str, int] = {}
+    motions: list[MotionShare] = []
+    frames: list[BearingShare] = []
+    truth_log: dict[int, list[tuple[float, FloatArray, float]]] = {}
+    for rec in read_recording(path).records:
+        if rec.encoding != ZENOH_ENCODING:
+            continue
+        payload, reason = decode_sample(rec.data)
+        if payload is None:
+            _count(counts, f"undecodable_{reason}")
+        elif isinstance(payload, MotionShare):
+            motions.append(payload)
+        elif isinstance(payload, BearingShare):
+            frames.append(payload)
+        elif isinstance(payload, Truth):
+            truth_log.setdefault(payload.sender, []).append(
+                (payload.stamp_s, np.array(payload.p_ned, dtype=float), float(payload.yaw_rad))
+            )
+    ids = sorted({m.sender for m in motions})
+    result = ReplayResult(ids=ids, state=None, counts=counts)
+    if len(ids) < 2:
+        _count(counts, "fewer_than_2_vehicles_with_odometry")
+        return result
+    index = {i: k for k, i in enumerate(ids)}
+    n = len(ids)
+    motions.sort(key=lambda m: m.stamp_s)
+    frames.sort(key=lambda f: f.stamp_s)
+    angles = 2.0 * np.pi * np.arange(1, n) / n
+    p0 = cfg.prior_radius_m * np.stack([np.cos(angles), np.sin(angles), np.zeros(n - 1)], axis=1)
+    state = initial_state(
+        p0, np.tile(np.eye(3), (n - 1, 1, 1)), cfg.prior_sigma_p_m, cfg.prior_sigma_theta_rad
+    )
+    latest: dict[int, MotionShare] = {}
+    m_next = 0
+    t_prev: float | None = None
+    for frame in frames:
+        t = frame.stamp_s
+        while m_next < len(motions) and motions[m_next].stamp_s <= t:
+            latest[motions[m_next].sender] = motions[m_next]
+            m_next += 1
+        if frame.sender not in index:
+            _count(counts, "bearings_from_vehicle_without_odometry")
+            continue
+        if t_prev is not None and t > t_prev:
+            v = np.zeros((n, 3))
+            w = np.zeros((n, 3))
+            std = np.zeros((n, 2))
+            for i, k in index.items():
+                m = latest.get(i)
+                if m is None or t - m.stamp_s > cfg.stale_s:
+                    _count(counts, "stale_odometry")
+                    std[k] = (cfg.stale_velocity_sigma_m_s, cfg.rate_sigma_rad_s * 10.0)
+                    continue
+                v[k] = m.v_body
+                w[k, 2] = m.yaw_rate_rad_s
+                std[k] = (cfg.velocity_sigma_m_s, cfg.rate_sigma_rad_s)
+            state = predict(state, v, w, t - t_prev, std)
+        t_prev = t if t_prev is None else max(t_prev, t)
+        edges, beta = [], []
+        for target, b in zip(frame.targets, frame.beta_body, strict=False):
+            if target not in index or target == frame.sender:
+                _count(counts, "bearing_to_unknown_vehicle")
+                continue
+            bv = np.asarray(b, dtype=float)
+            if (
+                bv.shape != (3,)
+                or not np.all(np.isfinite(bv))
+                or abs(np.linalg.norm(bv) - 1) > 1e-3
+            ):
+                _count(counts, "bad_bearing")
+                continue
+            edges.append((index[frame.sender], index[target]))
+            beta.append(bv)
+        if not edges:
+            continue
+        state, _ = update(state, np.array(edges), np.array(beta), cfg.bearing_sigma_rad)
+        result.frames += 1
+    result.state = state
+    if frames:
+        result.duration_s = float(frames[-1].stamp_s - frames[0].stamp_s)
+        t_end = t_prev if t_prev is not None else frames[-1].stamp_s
+        for i, log in truth_log.items():  # the truth sample nearest the final estimate's time
+            stamp, p, yaw = min(log, key=lambda s: abs(s[0] - t_end))
+            result.truth[i] = (p, yaw)
+            result.truth_age_s = max(result.truth_age_s, abs(stamp - t_end))
+    return result
