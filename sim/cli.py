@@ -85,7 +85,10 @@ def sim(
     ] = 14550,
     bind_base: Annotated[
         int | None,
-        typer.Option(help="UDP: vehicle i binds port bind-base + i (default: port-base + 40)."),
+        typer.Option(
+            help="UDP: vehicle i binds port bind-base + i (default: port-base + 40; 0: the "
+            "kernel picks free ports, printed at start)."
+        ),
     ] = None,
     tcp_base: Annotated[
         int, typer.Option(help="TCP: vehicle i listens on tcp-base + 10 i.")
@@ -337,7 +340,7 @@ def sim(
 
     server.start()
     try:
-        while not stop.wait(0.5):
+        while not stop.wait(0.5) and server.failure is None:
             if not quiet:
                 end = "\r" if sys.stdout.isatty() else "\n"
                 extra = f"  {images.status()}" if images is not None else ""
@@ -354,6 +357,9 @@ def sim(
             session.close()
         counters = " ".join(f"{k}={v}" for k, v in server.counters().items() if v)
         typer.echo(f"\nstopped at t={server.world.t_s:.2f}s; {counters}")
+    if server.failure is not None:  # never a live-looking process with a dead loop (issue 23)
+        typer.echo(f"error: {server.failure_text()}", err=True)
+        raise typer.Exit(1)
 
 
 def _render_rig(
