@@ -44,6 +44,7 @@ class FatalThreads:
         self.message = ""
         self._lock = threading.Lock()
         self._previous: Any = None
+        self._timer: threading.Timer | None = None
 
     def install(self) -> FatalThreads:
         self._previous = threading.excepthook
@@ -51,6 +52,10 @@ class FatalThreads:
         return self
 
     def uninstall(self) -> None:
+        """Restore the previous hook and cancel the grace timer (the process stopped in time)."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
         if self._previous is not None:
             threading.excepthook = self._previous
             self._previous = None
@@ -70,9 +75,9 @@ class FatalThreads:
         )  # fmt: skip
         if not first:
             return
-        timer = threading.Timer(self.grace_s, self._give_up)
-        timer.daemon = True
-        timer.start()
+        self._timer = threading.Timer(self.grace_s, self._give_up)
+        self._timer.daemon = True
+        self._timer.start()
         try:
             self.on_fatal(text)
         except Exception:  # the stop itself failed: only the timer is left

@@ -125,14 +125,6 @@ def agent(
         - neighbours
         - {agent_id}
     )
-    stopping = threading.Event()  # set by a dead worker thread (messages/fatal.py, issue 23)
-    stop_daemon: list[Any] = [stopping.set]
-
-    def on_fatal(_text: str) -> None:
-        for stop in stop_daemon:
-            stop()
-
-    fatal = FatalThreads(on_fatal=on_fatal).install()
     try:
         peers = PeerLink(
             c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss,
@@ -206,9 +198,9 @@ def agent(
     else:
         source = SimCameraSource(peers, drops, clock.now)
     daemon = AgentDaemon(fleet, agent_id, link, peers, source, clock, drops, url, on_status)
-    stop_daemon.append(daemon.stop_event.set)
-    if stopping.is_set():  # a thread died while the daemon was being built
-        daemon.stop_event.set()
+    # a worker thread that dies (the flight sequence, the link's loops) stops the daemon, which
+    # holds and exits 1 saying why, instead of running on half alive (messages/fatal.py)
+    fatal = FatalThreads(on_fatal=lambda _text: daemon.stop_event.set()).install()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: daemon.stop_event.set())
     try:
