@@ -104,7 +104,8 @@ class SimConfig:
 
     def _check_ports(self) -> None:
         """Every port the vehicles bind or send to must be a port (1..65535); ``bind_base = 0``
-        lets the kernel choose each vehicle's own UDP port (printed by :meth:`SimServer.endpoints`).
+        (``tcp_base = 0``) lets the kernel choose each vehicle's own UDP port (TCP server port),
+        printed by :meth:`SimServer.endpoints`.
         A port of 70000 used to end the loop thread with an OverflowError at its first send."""
         last = self.n - 1
         ranges: list[tuple[str, int, int]] = []
@@ -115,7 +116,7 @@ class SimConfig:
                 ranges.append(("bind base", self.bind_base, self.bind_base + last))
             if self.gcs_port is not None:
                 ranges.append(("gcs port", self.gcs_port, self.gcs_port))
-        else:
+        elif self.tcp_base != 0:
             ranges.append(("tcp base", self.tcp_base, self.tcp_base + 10 * last))
         for name, lo, hi in ranges:
             if not (1 <= lo and hi <= 65535):
@@ -189,7 +190,8 @@ class SimServer:
             port = 0 if cfg.bind_base == 0 else cfg.bind_base + i
             link = UdpLink(codec, (cfg.host, port), dests, ap.handle)
         else:
-            link = TcpLink(codec, (cfg.host, cfg.tcp_base + 10 * i), ap.handle)
+            port = 0 if cfg.tcp_base == 0 else cfg.tcp_base + 10 * i
+            link = TcpLink(codec, (cfg.host, port), ap.handle)
         ap.send = link.send
         link.register(self.selector)
         self.autopilots.append(ap)
@@ -366,6 +368,8 @@ def ports_needed(config: SimConfig) -> list[tuple[int, int]]:
     """(socket type, port) pairs a simulator with ``config`` binds or sends to."""
     n = config.n
     if config.transport == "tcp":
+        if config.tcp_base == 0:
+            return []
         return [(socket.SOCK_STREAM, config.tcp_base + 10 * i) for i in range(n)]
     assert config.bind_base is not None
     out = (
