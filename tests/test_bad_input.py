@@ -4,14 +4,11 @@ traceback, a process that never exits, or an option silently ignored (issue 23, 
 Every case ran before this test: 10 gave tracebacks, 3 never exited (here: did not exit within
 the test's timeout), 6 were accepted or ignored. CLI cases run in-process through typer's runner
 where no process is needed; the ones about a process (a port in use, a retry loop) run the real
-command in a subprocess, on free ports."""
+command in a subprocess, on free ports: tests/e2e/test_bad_input_processes.py."""
 
 from __future__ import annotations
 
-import math
 import socket
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -25,7 +22,6 @@ from groundstation.cli import app
 from groundstation.gcs.record import Recorder
 from groundstation.gcs.standin import StandinConfig, scripted_status
 from messages.codec import encode
-from sim.server import free_port_base
 
 FORMATION = """
 [[agent]]
@@ -182,45 +178,3 @@ def test_headless_demo_writes_its_summary_into_out(tmp_path: Path) -> None:
     assert res.exit_code in (0, 1), res.output  # the verdict of a 2 s mission may be FAIL
     summary = out / "summary.json"
     assert summary.is_file() and '"headless": true' in summary.read_text()
-
-
-def _bearingflock(*args: str, timeout_s: float) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", *args],
-        capture_output=True, text=True, timeout=timeout_s,
-    )  # fmt: skip
-
-
-def test_agent_zenoh_port_in_use_is_one_line(tmp_path: Path) -> None:
-    with held_tcp_port() as port:  # the agent 0 listens on port_base + 1
-        fleet = fleet_file(tmp_path, "", zenoh_base=port - 1)
-        res = _bearingflock("agent", "--id", "0", "--config", str(fleet), timeout_s=30)
-    assert res.returncode == 2, res.stderr
-    _one_line_error(res.stderr, "Address already in use")
-
-
-def test_sim_zenoh_port_in_use_is_one_line() -> None:
-    base = free_port_base(1)
-    with held_tcp_port() as port:
-        res = _bearingflock(
-            "sim", "--quiet", "--vehicles", "1", "--port-base", str(base), "--bind-base", "0",
-            "--gcs-port", "0", "--zenoh", f"tcp/127.0.0.1:{port}", timeout_s=30,
-        )  # fmt: skip
-    assert res.returncode == 2, res.stdout + res.stderr
-    _one_line_error(res.stderr, "Address already in use")
-
-
-def test_agent_with_its_mavlink_udpin_port_in_use_exits(tmp_path: Path) -> None:
-    """It retried the bind every second forever; now the flight thread's permanent error ends
-    the daemon (exit 1, one line), well within the test's timeout."""
-    zenoh = free_port_base(4)
-    with held_udp_port() as port:
-        fleet = fleet_file(tmp_path, f'[mavlink]\nurl = "udpin:127.0.0.1:{port}"', zenoh_base=zenoh)
-        t0 = time.monotonic()
-        res = _bearingflock("agent", "--id", "0", "--config", str(fleet), timeout_s=40)
-        took = time.monotonic() - t0
-    assert res.returncode == 1, res.stderr
-    assert "Traceback" not in res.stderr.split("error:")[-1]
-    assert res.stderr.strip().splitlines()[-1].startswith("error: thread 'flight-0' died")
-    assert "Address already in use" in res.stderr.strip().splitlines()[-1]
-    assert math.isfinite(took)
