@@ -10,6 +10,11 @@ wrong type or non-finite leaves the table unchanged, and the vehicle answers as 
 protocol says, with PARAM_VALUE carrying the current value (plus a STATUSTEXT naming the
 range, :meth:`sim.autopilot.common.Autopilot._on_param_set`). A value such as ``COM_OF_LOSS_T =
 176`` (an offboard failsafe that never fires) or ``GUID_TIMEOUT = -3989`` is refused.
+
+This is stricter than the firmware: ArduPilot checks only a few safety-critical parameters
+onboard and leaves the ``@Range`` metadata to ground stations (ArduPilot issues 2986, 20711), and
+PX4's ranges are metadata too. A client that handles the protocol's answer to a failed set (the
+unchanged PARAM_VALUE) works with both; one that sets absurd values learns it here, not in flight.
 """
 
 from __future__ import annotations
