@@ -33,6 +33,7 @@ import numpy as np
 from messages.agent import AgentStatus, OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand
+from messages.fatal import is_permanent
 from messages.limits import (
     ANGLE_MAX_RAD,
     DIMENSIONLESS_MAX,
@@ -264,6 +265,8 @@ class AgentDaemon:
                 self.link.connect(self.url, timeout_s=5.0)
                 break
             except LinkError as exc:
+                if is_permanent(exc):  # e.g. the udpin port is taken: ends the process (issue 23)
+                    raise
                 self.state.set("connecting", str(exc))
                 self.stop_event.wait(1.0)
         if self.stop_event.is_set():

@@ -158,6 +158,7 @@ def test_zenoh_settings_for_a_team_network(tmp_path):
         'connect = ["tcp/192.168.1.20:7448"]\nmulticast_scouting = true\n'
         'config_file = "zenoh.json5"\n'
     )
+    (tmp_path / "zenoh.json5").write_text("{}\n")  # a missing file is a ConfigError (issue 23)
     fleet = load_fleet(write(tmp_path, text))
     s = fleet.zenoh_settings(2)
     assert list(s.listen) == ["tcp/0.0.0.0:7450"]  # the wildcard covers loopback
