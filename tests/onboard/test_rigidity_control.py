@@ -155,12 +155,13 @@ def test_camera_angular_velocity_reduces_to_yaw_rate() -> None:
 def test_agent_core_rigidity_mode_drops_bad_payloads_and_commands_finite() -> None:
     from messages.agent import BearingMeasurement, OwnMeasurements, TargetMeasurement
     from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
-    from onboard.agent import AgentConfig, AgentCore
+    from onboard.core.agent import AgentCore
+    from onboard.core.config import build_config
 
     edges = tuple((i, j) for i in range(3) for j in range(3) if i != j)
     prior = ((0.0, 0.0, -5.0), (3.0, 1.0, -5.0), (2.0, -2.0, -6.0))
     core = AgentCore(
-        AgentConfig(
+        build_config(
             agent_id=0,
             n_agents=3,
             edges=edges,
@@ -193,7 +194,7 @@ def test_agent_core_rigidity_mode_drops_bad_payloads_and_commands_finite() -> No
     assert core.dropped.get("bad_bearing") == 1
     assert {type(m) for m in out} == {AngleLocalizationShare, RigidityEigenShare}
     # a core without the rigidity layer counts rigidity payloads as unknown
-    plain = AgentCore(AgentConfig(agent_id=0, n_agents=3, edges=edges, mode="hold"))
+    plain = AgentCore(build_config(agent_id=0, n_agents=3, edges=edges, mode="hold"))
     plain.step(0.0, own, [good])
     assert plain.dropped.get("unknown_type") == 1
 
