@@ -16,7 +16,7 @@ from typing import Any
 
 from messages.codec import Payload
 from messages.limits import stamp_ahead
-from messages.peer import BearingShare
+from messages.peer import BearingShare, TargetBearing
 from onboard.core.config import Graph
 from onboard.core.layer import Command, Own, Vec3
 from onboard.core.peers import Drops
@@ -58,15 +58,14 @@ class Bearings:
         self._last_frame_s = -math.inf
 
     def take(self, j: int, msg: BearingShare) -> bool:
-        if len(msg.targets) != len(msg.beta_body):
-            return False
-        for target, beta in zip(msg.targets, msg.beta_body, strict=True):
-            if target == self.id:
+        for b in msg.bearings:
+            if b.target == self.id:
+                beta = tuple(b.beta_body)
                 prev = self.beta_in.get(j)
                 if prev is None or msg.stamp_s > prev[0]:
-                    self.beta_in[j] = (msg.stamp_s, tuple(beta))
+                    self.beta_in[j] = (msg.stamp_s, beta)
                 if j in self.yaw_edges:
-                    self.yaw_edges[j].add_peer(msg.stamp_s, msg.yaw_rad, tuple(beta))
+                    self.yaw_edges[j].add_peer(msg.stamp_s, msg.yaw_rad, beta)
         return True
 
     def step(self, own: Own, outbox: list[Payload]) -> Command | None:
@@ -109,8 +108,7 @@ class Bearings:
                 seq=own.seq,
                 stamp_s=stamp,
                 yaw_rad=self.yaw_at(stamp, yaw_own),
-                targets=[t for t, _, _ in fresh],
-                beta_body=[b for _, _, b in fresh],
+                bearings=[TargetBearing(t, b) for t, _, b in fresh],
             )
         )
 

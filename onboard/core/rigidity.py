@@ -39,7 +39,7 @@ import numpy as np
 
 from messages.agent import OwnMeasurements
 from messages.codec import Payload
-from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
+from messages.rigidity import AngleLocalizationShare, GradientBlock, RigidityEigenShare
 from onboard.control import rigidity as ctl
 from onboard.core.config import Graph, RigidityGains
 from onboard.core.layer import Command, Own
@@ -83,6 +83,14 @@ def _blend(theta: FloatArray, tau: float) -> list[tuple[int, float]]:
     kept = [(m, float(w)) for m, w in enumerate(pi.tolist()) if w >= BLEND_FLOOR]
     total = sum(w for _, w in kept)
     return [(m, w / total) for m, w in kept]
+
+
+def _block_for(msg: AngleLocalizationShare, me: int) -> Vec3 | None:
+    """The first gradient block ``msg`` addresses to agent ``me`` (``None``: none)."""
+    for b in msg.blocks:
+        if b.target == me:
+            return b.grad_ned
+    return None
 
 
 def _vec(a: FloatArray) -> Vec3:
@@ -225,10 +233,9 @@ class RigidityLayer:
 
     # ------------------------------------------------------------------ inbox
     def take(self, j: int, msg: Any) -> bool:
-        """Whether neighbour ``j``'s rigidity payload is well formed (the table keeps it)."""
-        if isinstance(msg, AngleLocalizationShare):
-            return len(msg.targets) == len(msg.grad_ned)
-        return self.wire.fits(msg)
+        """Whether neighbour ``j``'s rigidity payload is well formed (the table keeps it): an
+        eigen share must fit this agent's :class:`EigenWire`."""
+        return isinstance(msg, AngleLocalizationShare) or self.wire.fits(msg)
 
     @property
     def _loc_in(self) -> dict[int, AngleLocalizationShare]:
@@ -310,10 +317,11 @@ class RigidityLayer:
         g_loc = st.angle_gradient(s_seen, beta, cfg.k_angle_loc)[1]
         g_loc += st.vertical_gradient(s_seen, beta, cfg.k_vertical_loc)[1]
         # the own block plus what the neighbours sent, summed in order (one conversion)
+        me = self.id
         sent = [
-            msg.grad_ned[msg.targets.index(self.id)]
+            g
             for j, msg in self._loc_in.items()
-            if j in p_est and self.id in msg.targets
+            if j in p_est and (g := _block_for(msg, me)) is not None
         ]
         grad = np.concatenate((g_loc[:1], np.array(sent, dtype=float).reshape(-1, 3))).sum(axis=0)
         for j, d in self._distances(own, t_s, sfm_distances).items():
@@ -327,8 +335,9 @@ class RigidityLayer:
                 p_hat_ned=_vec(p_own),
                 yaw_hat_rad=self.yaw_hat,
                 yaw_known=loc.yaw_known,
-                targets=list(self.seen),
-                grad_ned=_vecs(g_loc[1:]),
+                blocks=[
+                    GradientBlock(t, g) for t, g in zip(self.seen, _vecs(g_loc[1:]), strict=True)
+                ],
             )
         )
         loc.step(dt, v_body, yaw_odometry_rad, grad)

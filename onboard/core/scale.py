@@ -29,10 +29,13 @@ from typing import Any
 from messages.codec import Payload
 from messages.limits import STAMP_FUTURE_MAX_S
 from messages.peer import (
+    ConsensusEntry,
     ConsensusState,
+    EdgeExcitation,
     ExcitationTable,
     LocalizationState,
     MotionShare,
+    SfmEdgeEstimate,
     SfmEstimate,
 )
 from onboard.control import active_scale as act
@@ -119,7 +122,7 @@ class Scale:
         edges = set(graph.edges)
         self.known_edges = frozenset((i, j) for i, j in edges if i < j and (j, i) in edges)
         self._consensus: dict[str, PIConsensus] = {}
-        self._cons_out: tuple[list[str], list[list[float]], list[list[float]]] = ([], [], [])
+        self._cons_out: list[ConsensusEntry] = []
         self.rel: dict[int, tuple[float, Vec3]] = {}
         """Reciprocal edge ``j`` -> ``(psi_ij, u_ij)`` of this step (eq. 7)."""
         self.lambda_bar = 0.0
@@ -144,25 +147,17 @@ class Scale:
         return True  # LocalizationState: the table keeps it
 
     def _take_sfm(self, j: int, msg: SfmEstimate) -> bool:
-        n = len(msg.peers)
-        if not (len(msg.chi_hat_inv_m) == len(msg.excitation) == len(msg.e_index) == n):
-            return False
-        for m, peer in enumerate(msg.peers):
-            if peer == self.id:
-                self.sfm_in[j] = (msg.stamp_s, msg.chi_hat_inv_m[m])
-                if len(msg.e_folds) == n:
-                    self._e_folds_in[j] = msg.e_folds[m]
+        for e in msg.edges:
+            if e.peer == self.id:
+                self.sfm_in[j] = (msg.stamp_s, e.chi_hat_inv_m)
+                self._e_folds_in[j] = e.e_folds
         return True
 
     def _take_excitation(self, msg: ExcitationTable) -> bool:
-        n = len(msg.first)
-        if not (len(msg.second) == len(msg.excitation) == len(msg.stamps_s) == n):
-            return False
         table, known = self.lam_table, self.known_edges
         ahead = False
-        for a, b, lam, stamp in zip(
-            msg.first, msg.second, msg.excitation, msg.stamps_s, strict=True
-        ):
+        for entry in msg.entries:
+            a, b, lam, stamp = entry.first, entry.second, entry.excitation, entry.stamp_s
             if (a, b) not in known:  # only the fleet's edges: the table stays bounded
                 self._drops.count("unknown_edge")
                 continue
@@ -177,13 +172,11 @@ class Scale:
         return True
 
     def _take_consensus(self, j: int, msg: ConsensusState) -> bool:
-        if not len(msg.names) == len(msg.x) == len(msg.z):
-            return False
-        for name, x, z in zip(msg.names, msg.x, msg.z, strict=True):
-            if name not in CONSENSUS_NAMES:
+        for entry in msg.states:
+            if entry.name not in CONSENSUS_NAMES:
                 self._drops.count("unknown_name")
                 continue
-            self.cons_in.setdefault(name, {})[j] = (msg.stamp_s, x, z)
+            self.cons_in.setdefault(entry.name, {})[j] = (msg.stamp_s, entry.x, entry.z)
         return True
 
     def shared(self, name: str, t_s: float) -> list[list[float]]:
@@ -225,14 +218,15 @@ class Scale:
                     sender=self.id,
                     seq=own.seq,
                     stamp_s=t_s,
-                    peers=[j for j, _ in ran],
-                    chi_hat_inv_m=[e.chi_at(t_s, timeout) for _, e in ran],
-                    excitation=[e.excitation for _, e in ran],
-                    e_index=[e.e_index for _, e in ran],
-                    e_folds=[e.e_folds for _, e in ran],
+                    edges=[
+                        SfmEdgeEstimate(
+                            j, e.chi_at(t_s, timeout), e.excitation, e.e_index, e.e_folds
+                        )
+                        for j, e in ran
+                    ],
                 )
             )
-        self._cons_out = ([], [], [])
+        self._cons_out = []
         self._localize(own)
         self._run_consensus(own, outbox)
         return None
@@ -342,10 +336,7 @@ class Scale:
 
     def share(self, name: str, x: list[float], z: list[float]) -> None:
         """Add ``name``'s state to this step's :class:`messages.peer.ConsensusState`."""
-        names, xs, zs = self._cons_out
-        names.append(name)
-        xs.append(x)
-        zs.append(z)
+        self._cons_out.append(ConsensusEntry(name, x, z))
 
     def _run_consensus(self, own: Own, outbox: list[Payload]) -> None:
         g = self.gains
@@ -366,10 +357,7 @@ class Scale:
                     sender=self.id,
                     seq=own.seq,
                     stamp_s=t_s,
-                    first=[k[0] for k, _ in fresh],
-                    second=[k[1] for k, _ in fresh],
-                    excitation=[v[1] for _, v in fresh],
-                    stamps_s=[v[0] for _, v in fresh],
+                    entries=[EdgeExcitation(a, b, lam, s) for (a, b), (s, lam) in fresh],
                 )
             )
         e_sum = sum(
@@ -402,10 +390,8 @@ class Scale:
     # ---------------------------------------------------------------- finish
     def finish(self, own: Own, outbox: list[Payload]) -> None:
         """Publish the consensus states, the own motion and the localization estimate."""
-        names, xs, zs = self._cons_out
         seq, t_s = own.seq, own.t_s
-        outbox.append(ConsensusState(sender=self.id, seq=seq, stamp_s=t_s, names=names, x=xs,
-                                     z=zs))  # fmt: skip
+        outbox.append(ConsensusState(sender=self.id, seq=seq, stamp_s=t_s, states=self._cons_out))
         outbox.append(
             MotionShare(
                 sender=self.id,

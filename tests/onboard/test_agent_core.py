@@ -8,7 +8,8 @@ import pytest
 
 from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
-from messages.peer import BearingShare, MotionShare, PeerPayload
+from messages.peer import ConsensusEntry, ConsensusState, MotionShare, PeerPayload
+from messages.rigidity import RigidityEigenShare
 from onboard.core.agent import AgentCore
 from onboard.core.config import build_config
 from onboard.geometry import bearings_body, rot_z
@@ -120,8 +121,10 @@ def test_bad_input_is_counted_not_fatal():
     assert sp.v_body == (0.0, 0.0, 0.0) and out == []
     bad = [
         MotionShare(sender=7, v_body=(0, 0, 0), yaw_rate_rad_s=0.0, yaw_rad=0.0),  # unknown
-        BearingShare(sender=1, yaw_rad=0.0, targets=[0, 2], beta_body=[(1.0, 0.0, 0.0)]),
-    ]
+        ConsensusState(sender=1, states=[ConsensusEntry("not_a_quantity", [1.0], [])]),
+        RigidityEigenShare(sender=2, lambda_hat=0.0, targets=[], state=np.zeros(1),
+                           per_target=np.zeros(0)),  # no rigidity layer in this mode
+    ]  # fmt: skip
     sp, out = core.step(0.004, own, bad)
     core.step(0.001, own)  # time going backwards
     frame = (
@@ -137,7 +140,8 @@ def test_bad_input_is_counted_not_fatal():
     assert core.dropped == {
         "nonfinite_own": 1,
         "not_neighbour": 1,
-        "malformed": 1,
+        "unknown_name": 1,
+        "unknown_type": 1,
         "time_backwards": 1,
         "bad_bearing": 2,
     }

@@ -73,7 +73,7 @@ def test_peer_table_checks_sender_kind_and_stamp_before_the_layer_sees_it() -> N
                   0.0)  # fmt: skip
     peers.receive(MotionShare(sender=1, v_body=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0, yaw_rad=0.0),
                   0.0)  # fmt: skip
-    peers.receive(ConsensusState(sender=1, names=[], x=[], z=[]), 0.0)  # no route at all
+    peers.receive(ConsensusState(sender=1, states=[]), 0.0)  # no route at all
     peers.receive(_loc(2, 0.0, x=-1.0), 0.0)  # the layer finds it malformed
     assert peers.drops == {
         "not_neighbour": 3,  # 0, 7 and MotionShare from 2 (route senders: {1})
@@ -188,7 +188,8 @@ def test_a_composition_takes_and_publishes_only_its_layers_kinds() -> None:
             assert set(kinds) <= {BearingShare, *rigid}
         else:
             assert kinds[-3:] == [ConsensusState, MotionShare, LocalizationState]
-            names = next(m for m in out if isinstance(m, ConsensusState)).names
+            states = next(m for m in out if isinstance(m, ConsensusState)).states
+            names = [e.name for e in states]
             assert ("w_l" in names) == (mode == "formation-active")
 
 

@@ -11,11 +11,15 @@ from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
 from messages.peer import (
     BearingShare,
+    ConsensusEntry,
     ConsensusState,
+    EdgeExcitation,
     ExcitationTable,
     MotionShare,
     PeerPayload,
+    SfmEdgeEstimate,
     SfmEstimate,
+    TargetBearing,
 )
 from messages.sim import CameraBearings
 from onboard.core.agent import AgentCore
@@ -59,9 +63,8 @@ def test_a_received_sfm_estimate_expires():
     c = core(1)  # edge (0, 1) is run by agent 0, which shares chi_hat with agent 1
     c.step(1.0, own(1.0))
     est = SfmEstimate(
-        sender=0, seq=1, stamp_s=1.0, peers=[1], chi_hat_inv_m=[0.25], excitation=[1.0],
-        e_index=[0.0], e_folds=[10.0],
-    )  # fmt: skip
+        sender=0, seq=1, stamp_s=1.0, edges=[SfmEdgeEstimate(1, 0.25, 1.0, 0.0, 10.0)]
+    )
     c.step(1.01, own(1.01), [wire(est)])
     assert c.chi_hat(0) == 0.25
     assert c.status().chi_hat_inv_m[0] == 0.25
@@ -87,10 +90,10 @@ def test_one_future_stamped_peer_sample_does_not_freeze_peer_state():
     t = 1.0
     c.step(t, own(t), [wire(motion(2, t))])
     future = wire(motion(2, t + 1e6))
-    bearings = wire(BearingShare(sender=2, stamp_s=t + 1e6, yaw_rad=0.0, targets=[1],
-                                 beta_body=[(1.0, 0.0, 0.0)]))  # fmt: skip
-    table = wire(ExcitationTable(sender=2, stamp_s=t, first=[0], second=[2], excitation=[5.0],
-                                 stamps_s=[t + 1e6]))  # fmt: skip
+    bearings = wire(BearingShare(sender=2, stamp_s=t + 1e6, yaw_rad=0.0,
+                                 bearings=[TargetBearing(1, (1.0, 0.0, 0.0))]))  # fmt: skip
+    table = wire(ExcitationTable(sender=2, stamp_s=t,
+                                 entries=[EdgeExcitation(0, 2, 5.0, t + 1e6)]))  # fmt: skip
     c.step(t + 0.01, own(t + 0.01), [future, bearings, table])
     for k in range(2, 50):
         t_k = t + 0.01 * k
@@ -176,12 +179,13 @@ def test_consensus_names_and_excitation_edges_are_bounded_by_the_fleet():
     for k in range(20):
         t += 0.01
         names = [f"n{k}_{m}" for m in range(1000)]
-        cons = ConsensusState(sender=2, stamp_s=t, names=["e_index", *names],
-                              x=[[0.0]] * 1001, z=[[0.0]] * 1001)  # fmt: skip
+        cons = ConsensusState(sender=2, stamp_s=t, states=[
+            ConsensusEntry(name, [0.0], [0.0]) for name in ["e_index", *names]])  # fmt: skip
         first = [m % 50 for m in range(1000)]
         second = [50 + k + m // 50 for m in range(1000)]
-        table = ExcitationTable(sender=2, stamp_s=t, first=[0, *first], second=[2, *second],
-                                excitation=[1.0] * 1001, stamps_s=[t] * 1001)  # fmt: skip
+        table = ExcitationTable(sender=2, stamp_s=t, entries=[
+            EdgeExcitation(a, b, 1.0, t) for a, b in zip([0, *first], [2, *second], strict=True)
+        ])  # fmt: skip
         c.step(t, own(t), [wire(cons), wire(table)])
     assert (
         set(c.scale.cons_in) <= {"e_index", "p_bar", "dlam_dwl", "w_l"}

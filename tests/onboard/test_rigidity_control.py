@@ -171,13 +171,13 @@ def test_agent_core_rigidity_mode_drops_bad_payloads_and_commands_finite() -> No
             track_target=0,
         )
     )
-    bad = AngleLocalizationShare(
-        sender=1, seq=0, stamp_s=0.0, p_hat_ned=prior[1], yaw_hat_rad=0.0, yaw_known=True,
-        targets=[0], grad_ned=[],
+    bad = RigidityEigenShare(  # not the layout of 3 vectors per agent
+        sender=1, seq=0, stamp_s=0.0, lambda_hat=0.1, targets=[0], state=np.zeros(3),
+        per_target=np.zeros(3),
     )  # fmt: skip
     good = AngleLocalizationShare(
         sender=2, seq=0, stamp_s=0.0, p_hat_ned=prior[2], yaw_hat_rad=0.0, yaw_known=True,
-        targets=[], grad_ned=[],
+        blocks=[],
     )  # fmt: skip
     own = OwnMeasurements(
         t_s=0.01,
