@@ -98,8 +98,8 @@ class AgentCore:
             frozenset() if self.rigidity is None else frozenset(self.rigidity.neighbours)
         )
         for layer in self.layers:
-            for kind, senders in layer.kinds.items():
-                self.peers.route(kind, Route(senders, layer.take))
+            for kind, route in layer.routes.items():
+                self.peers.route(kind, route)
         for kind in OUTBOX_ORDER:  # known kinds no layer takes: counted as unknown_type
             if kind not in self.peers.routes:
                 self.peers.route(kind, Route(self.peers.neighbours))

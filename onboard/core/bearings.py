@@ -19,7 +19,7 @@ from messages.limits import stamp_ahead
 from messages.peer import BearingShare, TargetBearing
 from onboard.core.config import Graph
 from onboard.core.layer import Command, Own, Vec3
-from onboard.core.peers import Drops
+from onboard.core.peers import Drops, Route
 from onboard.estimation.relative_yaw import RelativeYawEdge
 from onboard.estimation.time_alignment import SignalHistory
 
@@ -42,7 +42,7 @@ class Bearings:
         self.id = me
         self.out_targets = sorted({j for i, j in graph.edges if i == me})
         self.in_sources = sorted({i for i, j in graph.edges if j == me})
-        self.kinds: dict[type, frozenset[int]] = {BearingShare: neighbours}
+        self.routes = {BearingShare: Route(neighbours, self.take)}
         self._yaw_peers = list(yaw_peers)
         self._drops = drops
         self.yaw_edges = {j: RelativeYawEdge() for j in yaw_peers}
@@ -58,6 +58,7 @@ class Bearings:
         self._last_frame_s = -math.inf
 
     def take(self, j: int, msg: BearingShare) -> bool:
+        """Keep ``beta_ji`` newest by stamp and feed the relative-yaw tracker."""
         for b in msg.bearings:
             if b.target == self.id:
                 beta = tuple(b.beta_body)

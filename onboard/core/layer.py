@@ -4,9 +4,9 @@ A layer (:mod:`onboard.core.bearings`, :mod:`onboard.core.scale`, :mod:`onboard.
 :mod:`onboard.core.rigidity`) owns its state. Per core step, in the order of its mode's
 composition (:data:`onboard.core.modes.MODE_LAYERS`), it
 
-1. takes the peer payloads of the kinds it declares (:attr:`Layer.kinds`, through
-   :class:`onboard.core.peers.PeerTable`: the table checks the sender and the stamp, the
-   layer the contents);
+1. takes the peer payloads of the kinds it declares (:attr:`Layer.routes`: who may send each
+   kind and the layer's handler; :class:`onboard.core.peers.PeerTable` checks the sender and
+   the stamp, the handler the contents);
 2. steps with the vehicle's own measurements (:class:`Own`) and returns its velocity /
    yaw-rate contribution (:class:`Command`, or ``None`` for an estimator), appending the
    payloads it publishes;
@@ -24,6 +24,7 @@ import msgspec
 
 from messages.agent import OwnMeasurements
 from messages.codec import Payload
+from onboard.core.peers import Route
 
 Vec3 = tuple[float, float, float]
 
@@ -55,12 +56,9 @@ class Command(NamedTuple):
 class Layer(Protocol):
     """One job of the agent core (module docstring)."""
 
-    kinds: Mapping[type, frozenset[int]]
-    """Peer payload kinds this layer takes, and who may send each."""
-
-    def take(self, sender: int, msg: Any) -> bool:
-        """Take one checked peer payload; False if malformed (counted, not kept)."""
-        ...
+    routes: Mapping[type, Route]
+    """Peer payload kinds this layer takes: who may send each, and its handler
+    (``take(sender, msg) -> bool``, False if malformed: counted, not kept)."""
 
     def step(self, own: Own, outbox: list[Payload]) -> Command | None:
         """Advance to ``own.t_s``; the contribution to the setpoint (``None``: none)."""

@@ -24,6 +24,7 @@ from onboard.control.random_motion import RandomMotion
 from onboard.core.bearings import Bearings
 from onboard.core.config import ActiveGains, FormationGains, Graph
 from onboard.core.layer import Command, Own, Vec3
+from onboard.core.peers import Route
 from onboard.core.scale import Scale
 
 _ZERO: Vec3 = (0.0, 0.0, 0.0)
@@ -32,14 +33,11 @@ _ZERO: Vec3 = (0.0, 0.0, 0.0)
 class _Controller:
     """What the controllers share: no peer payloads, nothing to publish or forget."""
 
-    kinds: ClassVar[Mapping[type, frozenset[int]]] = MappingProxyType({})
+    routes: ClassVar[Mapping[type, Route]] = MappingProxyType({})
     u_cmd: Vec3 = _ZERO
     """The velocity state of the active and random laws (zero for the others)."""
     k_e = 0.0
     w_l = 0.0
-
-    def take(self, sender: int, msg: Any) -> bool:
-        return True
 
     def finish(self, own: Own, outbox: list[Payload]) -> None:
         return None

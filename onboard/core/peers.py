@@ -65,7 +65,8 @@ class PeerTable:
     def receive(self, msg: Payload, t_s: float) -> None:
         """Check one payload and hand it to its route's layer; count it if dropped."""
         j = msg.sender
-        route = self.routes.get(type(msg))
+        kind = type(msg)
+        route = self.routes.get(kind)
         if j not in (self.neighbours if route is None else route.senders):
             self.drops.count("not_neighbour")
             return
@@ -76,10 +77,11 @@ class PeerTable:
             self.drops.count("future_stamp")
             return
         self.heard[j] = t_s
-        if route.take is None:
+        take = route.take
+        if take is None:
             self.drops.count("unknown_type")
-        elif route.take(j, msg):
-            self._latest[type(msg)][j] = msg
+        elif take(j, msg):
+            self._latest[kind][j] = msg
         else:
             self.drops.count("malformed")
 

@@ -43,7 +43,7 @@ from messages.rigidity import AngleLocalizationShare, GradientBlock, RigidityEig
 from onboard.control import rigidity as ctl
 from onboard.core.config import Graph, RigidityGains
 from onboard.core.layer import Command, Own
-from onboard.core.peers import PeerTable
+from onboard.core.peers import PeerTable, Route
 from onboard.estimation import star_rigidity as st
 from onboard.estimation.angle_localization import AngleLocalizer, distance_gradient
 from onboard.estimation.distributed_eigen import (
@@ -83,6 +83,10 @@ def _blend(theta: FloatArray, tau: float) -> list[tuple[int, float]]:
     kept = [(m, float(w)) for m, w in enumerate(pi.tolist()) if w >= BLEND_FLOOR]
     total = sum(w for _, w in kept)
     return [(m, w / total) for m, w in kept]
+
+
+def _keep(j: int, msg: Any) -> bool:
+    return True
 
 
 def _block_for(msg: AngleLocalizationShare, me: int) -> Vec3 | None:
@@ -185,9 +189,10 @@ class RigidityLayer:
         r_edges = gains.rigidity_edges or graph.edges
         self.candidates = sorted({j for i, j in r_edges if i == me})
         self.neighbours = sorted(set(self.candidates) | {i for i, j in r_edges if j == me})
-        self.kinds: dict[type, frozenset[int]] = {
-            AngleLocalizationShare: frozenset(self.neighbours),
-            RigidityEigenShare: frozenset(self.neighbours),
+        senders = frozenset(self.neighbours)
+        self.routes = {
+            AngleLocalizationShare: Route(senders, _keep),  # the table keeps it
+            RigidityEigenShare: Route(senders, self.take_eigen),
         }
         self._distances_of = distances
         self.localizes = localizes
@@ -232,10 +237,10 @@ class RigidityLayer:
         """Steps whose action was not finite (dropped to zero)."""
 
     # ------------------------------------------------------------------ inbox
-    def take(self, j: int, msg: Any) -> bool:
-        """Whether neighbour ``j``'s rigidity payload is well formed (the table keeps it): an
-        eigen share must fit this agent's :class:`EigenWire`."""
-        return isinstance(msg, AngleLocalizationShare) or self.wire.fits(msg)
+    def take_eigen(self, j: int, msg: RigidityEigenShare) -> bool:
+        """Whether neighbour ``j``'s eigen share fits this agent's :class:`EigenWire` (the
+        table keeps it)."""
+        return self.wire.fits(msg)
 
     @property
     def _loc_in(self) -> dict[int, AngleLocalizationShare]:

@@ -42,7 +42,7 @@ from onboard.control import active_scale as act
 from onboard.core.bearings import MAX_ODOMETRY_GAP_S, Bearings
 from onboard.core.config import Graph, ScaleGains
 from onboard.core.layer import Command, Own, Vec3
-from onboard.core.peers import Drops, PeerTable
+from onboard.core.peers import Drops, PeerTable, Route
 from onboard.estimation.consensus import PIConsensus
 from onboard.estimation.localization import LocalizationFilter
 from onboard.estimation.sfm_observer import SfmEdge, WindowAverage, excitation
@@ -55,6 +55,10 @@ CONSENSUS_NAMES = frozenset({"e_index", "p_bar", "dlam_dwl", "w_l"})
 """The quantities agents run consensus on (:class:`messages.peer.ConsensusState` names): any
 other name from a neighbour is counted (``unknown_name``) and dropped, so a neighbour cannot
 grow a receiver's tables (issue 23: 45,000 names per payload took a daemon to 650 MB)."""
+
+
+def _keep(j: int, msg: Any) -> bool:
+    return True
 
 
 def rotz(psi: float, v: Vec3) -> Vec3:
@@ -79,12 +83,12 @@ class Scale:
         self.reciprocal = list(reciprocal)
         self.running = [j for j in reciprocal if me < j]
         neighbours = peers.neighbours
-        self.kinds: dict[type, frozenset[int]] = {
-            MotionShare: neighbours,
-            LocalizationState: neighbours,
-            SfmEstimate: neighbours,
-            ExcitationTable: neighbours,
-            ConsensusState: neighbours,
+        self.routes = {
+            MotionShare: Route(neighbours, self._take_motion),
+            LocalizationState: Route(neighbours, _keep),  # the table keeps it
+            SfmEstimate: Route(neighbours, self._take_sfm),
+            ExcitationTable: Route(neighbours, self._take_excitation),
+            ConsensusState: Route(neighbours, self._take_consensus),
         }
         self.localization = LocalizationFilter(
             graph.p0(me), graph.yaw0(me), gains.k_loc_bearing, gains.k_loc_distance
@@ -131,20 +135,11 @@ class Scale:
         self.p_bar: Vec3 = (0.0, 0.0, 0.0)
 
     # ----------------------------------------------------------------- inbox
-    def take(self, j: int, msg: Any) -> bool:
-        kind = type(msg)
-        if kind is MotionShare:
-            hist = self.motion_hist.get(j)
-            if hist is not None:
-                hist.add(msg.stamp_s, (*msg.v_body, msg.yaw_rate_rad_s, msg.yaw_rad))
-            return True
-        if kind is SfmEstimate:
-            return self._take_sfm(j, msg)
-        if kind is ExcitationTable:
-            return self._take_excitation(msg)
-        if kind is ConsensusState:
-            return self._take_consensus(j, msg)
-        return True  # LocalizationState: the table keeps it
+    def _take_motion(self, j: int, msg: MotionShare) -> bool:
+        hist = self.motion_hist.get(j)
+        if hist is not None:
+            hist.add(msg.stamp_s, (*msg.v_body, msg.yaw_rate_rad_s, msg.yaw_rad))
+        return True
 
     def _take_sfm(self, j: int, msg: SfmEstimate) -> bool:
         for e in msg.edges:
@@ -153,7 +148,7 @@ class Scale:
                 self._e_folds_in[j] = e.e_folds
         return True
 
-    def _take_excitation(self, msg: ExcitationTable) -> bool:
+    def _take_excitation(self, j: int, msg: ExcitationTable) -> bool:
         table, known = self.lam_table, self.known_edges
         ahead = False
         for entry in msg.entries:

@@ -11,7 +11,7 @@ from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 from onboard.core.config import AgentConfig, build_config
-from onboard.core.peers import Drops, PeerTable, Route
+from onboard.core.peers import Drops, PeerTable
 from onboard.core.rigidity import ROUND_TIMEOUT_S, RigidityLayer
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph
@@ -27,8 +27,8 @@ def _layer(cfg: AgentConfig) -> RigidityLayer:
     me = cfg.graph.agent_id
     peers = PeerTable(frozenset(range(N)) - {me}, cfg.safety.peer_timeout_s, Drops())
     layer = RigidityLayer(cfg.graph, cfg.rigidity, peers)
-    for kind, senders in layer.kinds.items():
-        peers.route(kind, Route(senders, layer.take))
+    for kind, route in layer.routes.items():
+        peers.route(kind, route)
     return layer
 
 
