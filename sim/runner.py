@@ -33,7 +33,8 @@ from messages.agent import (
 )
 from messages.codec import Payload
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
-from onboard.agent import AgentConfig, AgentCore
+from onboard.core.agent import AgentCore
+from onboard.core.config import AgentConfig
 from onboard.geometry import FloatArray, IntArray, bearings_body, rot_z
 from onboard.graph import edge_index, normalize_edges, reciprocal_pairs, sensing_graph
 
@@ -231,7 +232,7 @@ def run(
     n = len(configs)
     p0 = np.asarray(p0_ned, dtype=float).reshape(n, 3)
     y0 = np.asarray(yaw0_rad, dtype=float).reshape(n)
-    edges = normalize_edges(configs[0].edges)
+    edges = normalize_edges(configs[0].graph.edges)
     pairs = reciprocal_pairs(edges)
     cores = [AgentCore(c) for c in configs]
     rng = np.random.default_rng(runner.seed)
@@ -239,8 +240,8 @@ def run(
     offsets = rng.uniform(-runner.yaw_offset_max_rad, runner.yaw_offset_max_rad, n).tolist()
 
     # the cameras see along the formation's edges and the rigidity layer's (AgentConfig)
-    extra = configs[0].rigidity_edges
-    sensed = normalize_edges([*configs[0].edges, *extra]) if extra else edges
+    extra = configs[0].rigidity.rigidity_edges
+    sensed = normalize_edges([*configs[0].graph.edges, *extra]) if extra else edges
     comm = _undirected(edges, n)
     # neighbours only the rigidity layer talks to get only its payloads (as a daemon subscribes)
     comm_rigidity = [

@@ -119,9 +119,9 @@ def agent(
         raise typer.Exit(2) from None
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
-    neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}
+    neighbours = {j for e in core_config.graph.edges for j in e if agent_id in e} - {agent_id}
     rigidity_only = (
-        {j for e in core_config.rigidity_edges for j in e if agent_id in e}
+        {j for e in core_config.rigidity.rigidity_edges for j in e if agent_id in e}
         - neighbours
         - {agent_id}
     )

@@ -60,7 +60,7 @@
     rate_hz = 20.0                    # the layer's steps (a slow outer loop), <= rates.core
 
     [sfm]                             # the SfM observers against a biased odometry (0: off,
-                                      # paper 000's observer; onboard/agent.py AgentConfig)
+                                      # paper 000's observer; onboard/core/config.py AgentConfig)
     bias_speed_m_s = 0.1              # no scale correction below this speed across a bearing
     wander_window_s = 2.0             # an estimate corrected by more than wander_max within
     wander_max = 0.02                 # wander_window_s is not converged (active motion on)
@@ -169,7 +169,7 @@ class RigiditySection(msgspec.Struct, forbid_unknown_fields=True):
 
 
 class SfmSection(msgspec.Struct, forbid_unknown_fields=True):
-    """The SfM observers' safeguards against a biased odometry (onboard/agent.py AgentConfig;
+    """The SfM observers' safeguards against a biased odometry (onboard/core/config.py AgentConfig;
     0 turns each off: paper 000's observer)."""
 
     bias_speed_m_s: float = 0.1
