@@ -217,7 +217,7 @@ def saturate(v0, v1, v2, limit):
     return (k * v0, k * v1, k * v2)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def consensus_step(i, lo, hi, phi, cx, cz, cons_in, fresh, g, dtk, dx, dz):
     """One PI consensus step (fig. 1, :class:`onboard.estimation.consensus.PIConsensus`) of
     agent ``i``'s quantities ``lo:hi`` with inputs ``phi`` and the fresh neighbours' payloads;
@@ -377,7 +377,7 @@ def simulate(g, team, noise, state, trace):
                 for j in range(n):
                     if not comm[i, j]:
                         continue
-                    if not lost(seed, k_sent, j, i, n, K_MOTION, loss):
+                    if not (loss > 0.0 and lost(seed, k_sent, j, i, n, K_MOTION, loss)):
                         mot_in[i, j] = pub_mot[src, j]
                         mot_has[i, j] = True
                         kk = pair_of[i, j]
@@ -385,24 +385,26 @@ def simulate(g, team, noise, state, trace):
                             pm[kk, k_sent % hist] = pub_mot[src, j]
                             pm_step[kk, k_sent % hist] = k_sent
                             pm_newest[kk] = k_sent
-                    if not lost(seed, k_sent, j, i, n, K_LOC, loss):
+                    if not (loss > 0.0 and lost(seed, k_sent, j, i, n, K_LOC, loss)):
                         loc_in[i, j] = pub_loc[src, j]
                         loc_has[i, j] = True
-                    if not lost(seed, k_sent, j, i, n, K_CONS, loss):
+                    if not (loss > 0.0 and lost(seed, k_sent, j, i, n, K_CONS, loss)):
                         cons_in[i, j] = pub_cons[src, j]
                         cons_has[i, j] = True
-                    if not lost(seed, k_sent, j, i, n, K_TAB, loss):
+                    if not (loss > 0.0 and lost(seed, k_sent, j, i, n, K_TAB, loss)):
                         for kk in range(n_pairs):
                             st = pub_tab[src, j, kk]
                             if st > tab[i, kk]:
                                 tab[i, kk] = st
                     kk = pair_of[i, j]
                     if kk >= 0 and pair_ends[kk, 0] == j and pub_sfm_has[src, kk]:
-                        if not lost(seed, k_sent, j, i, n, K_SFM, loss):
+                        if not (loss > 0.0 and lost(seed, k_sent, j, i, n, K_SFM, loss)):
                             sfm_in[i, j, 0] = k_sent * dt
                             sfm_in[i, j, 1] = pub_sfm[src, kk]
                             sfm_has[i, j] = True
-                    if pub_bear_has[src, j] and not lost(seed, k_sent, j, i, n, K_BEAR, loss):
+                    if pub_bear_has[src, j] and not (
+                        loss > 0.0 and lost(seed, k_sent, j, i, n, K_BEAR, loss)
+                    ):
                         stamp = pub_bear[src, j, 0]
                         if adj[j, i] and (not bin_has[i, j] or stamp > bin_in[i, j, 0]):
                             bin_in[i, j, 0] = stamp

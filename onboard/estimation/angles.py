@@ -12,6 +12,7 @@ import math
 
 TAU = math.tau
 PI = math.pi
+THREE_PI = 3.0 * math.pi
 
 
 def wrap_rad(a: float) -> float:
@@ -19,8 +20,17 @@ def wrap_rad(a: float) -> float:
 
     ``|a| % tau`` is exact (an ``fmod`` of positive operands) and subtracting ``tau`` from a
     remainder in ``(pi, tau)`` is exact too (Sterbenz), so the result is the exact IEEE
-    remainder. A non-finite ``a`` gives NaN (``math.remainder`` raises on infinity)."""
+    remainder. A non-finite ``a`` gives NaN (``math.remainder`` raises on infinity). Angles
+    within a turn of the range skip the ``fmod`` (15 ns in numba, most of the calls)."""
+    if -PI <= a <= PI:  # the usual case: already wrapped
+        return a
+    if PI < a < THREE_PI:  # one turn off: n = 1, and a - tau is exact (Sterbenz)
+        return a - TAU
+    if -THREE_PI < a < -PI:
+        return -(-a - TAU)  # (the sign of a zero as math.remainder)
     r = abs(a) % TAU
     if r > PI:
         r -= TAU
+    elif r == PI and abs(a) % (2.0 * TAU) != PI:  # a tie: the even multiple, as IEEE
+        r = -PI
     return r if a >= 0.0 else -r

@@ -29,12 +29,17 @@ def _unit() -> tuple[float, float, float]:
 
 
 def test_wrap_rad_is_math_remainder_bit_for_bit() -> None:
+    turns = np.array([m * math.pi for m in range(-9, 10)])  # the ties and the branch ends
+    edges = np.concatenate([turns, np.nextafter(turns, np.inf), np.nextafter(turns, -np.inf)])
     xs = np.concatenate(
-        [RNG.uniform(-1, 1, 20000) * 10.0 ** RNG.uniform(-4, 7, 20000), [0.0, math.pi, -math.pi]]
+        [RNG.uniform(-1, 1, 20000) * 10.0 ** RNG.uniform(-4, 7, 20000), RNG.uniform(-12, 12, 5000)]
     )
     fast = compiled(angles).wrap_rad
-    for a in xs.tolist():
-        assert angles.wrap_rad(a) == math.remainder(a, math.tau)
+    for a in [*xs.tolist(), *edges.tolist(), 0.0, -0.0]:
+        r = math.remainder(a, math.tau)
+        assert angles.wrap_rad(a) == r and math.copysign(1.0, angles.wrap_rad(a)) == math.copysign(
+            1.0, r
+        ), a
         assert fast(a) == angles.wrap_rad(a)
     assert math.isnan(angles.wrap_rad(math.inf))  # no ValueError in the middle of a run
 
