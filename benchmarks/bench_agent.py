@@ -24,7 +24,7 @@ from core_replay import describe, record, time_cases
 from onboard.core.config import build_config
 from sim.compiled_runner import run_compiled
 from sim.runner import RunnerConfig, run
-from sim.scenarios import run_scenario
+from sim.scenarios import PAPER_SFM, run_scenario
 
 
 def _ring_team(n: int, seed: int = 0):
@@ -48,6 +48,7 @@ def _ring_team(n: int, seed: int = 0):
             p_hat0_ned=p_hat0,
             yaw_hat0_rad=tuple(float(y) for y in yaw0),
             seed=seed,
+            **PAPER_SFM,  # the observer both engines run (the compiled one has no safeguards)
         )
         for i in range(n)
     ]

@@ -2,15 +2,16 @@
 
 :func:`run_compiled` takes what :func:`sim.runner.run` takes and returns the same
 :class:`sim.runner.Recording`, from :func:`sim.team_kernel.simulate` instead of N Python
-:class:`onboard.agent.AgentCore` objects. Use it for studies (many seeds, long runs); the cores
+:class:`onboard.core.agent.AgentCore` objects. Use it for studies (many seeds, long runs); the cores
 remain the reference, and what the daemons fly. The two engines agree on the same seed (tests
 compare trajectories, convergence times and estimates), with these differences:
 
-* message loss draws its own random numbers (same probability, other realization), so with
-  loss the runs differ; without it they agree to round-off;
-* supported: modes ``active``, ``random``, ``formation``, ``formation-active``, bearing and
-  odometry noise, loss, latency and the autopilot lags. Not: camera latency, field of view,
-  ranges, targets, the rigidity layer (:class:`ValueError` names the option).
+* both lose the same message copies (:func:`sim.draws.lost` of the step sent, the sender, the
+  receiver and the payload kind) and add the same noise (the runner's streams, pre-drawn in
+  its order), so they agree to round-off with and without loss;
+* supported: modes ``active``, ``random``, ``formation``, ``formation-active`` and ``hold``,
+  bearing and odometry noise, loss, latency and the autopilot lags. Not: camera latency,
+  field of view, ranges, targets, the rigidity layer (:class:`ValueError` names the option).
 
 The first call compiles the kernel (about 30 s on a small machine); numba caches it next
 to the sources (``__pycache__``), so later processes load it in about a second.
@@ -26,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from onboard.control.random_motion import _BLOCK
+from onboard.core.bearings import MAX_ODOMETRY_GAP_S
 from onboard.core.config import AgentConfig, replace_fields
 from onboard.estimation.localization import MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S
 from onboard.graph import normalize_edges, reciprocal_pairs
@@ -185,55 +187,42 @@ def run_compiled(
     des_yaw = np.array(cfg.formation.desired_yaw_rad or [0.0] * n, dtype=float)
 
     rec = Recording.allocate(edges, pairs, n, n_steps // runner.record_every + 1)
-    lag_v = min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0
-    lag_w = min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0
-    team_kernel.simulate(
-        Gains.of(cfg),
-        team_kernel.MODE_CODES[cfg.mode],
-        n_steps,
-        dt,
-        frame_every,
-        delay,
-        runner.record_every,
-        cfg.scale.excitation_relay_every,
-        cfg.scale.e_window_s,
-        adj,
-        pairs.astype(np.int64),
-        des,
-        has_des,
-        des_yaw,
-        bool(cfg.formation.desired_yaw_rad),
-        p,
-        yaw,
-        offsets,
-        p_hat,
-        yaw_hat,
-        chi,
-        u_cmd,
-        rand_z,
-        rand_noise,
-        speed,
-        bearing_noise,
-        runner.bearing_noise_rad,
-        vel_noise,
-        runner.velocity_noise_m_s,
-        runner.yaw_rate_noise_rad_s,
-        lag_v,
-        lag_w,
-        runner.loss,
-        np.random.default_rng([runner.seed, 11]),
-        rec.t_s,
-        rec.p_ned,
-        rec.yaw_rad,
-        rec.v_ned,
-        rec.p_hat_ned,
-        rec.yaw_hat_rad,
-        rec.chi_hat,
-        rec.lambda_bar_est,
-        rec.e_index_est,
-        rec.k_e,
-        rec.w_l,
+    team = team_kernel.Team(
+        mode=team_kernel.MODE_CODES[cfg.mode],
+        n_steps=n_steps,
+        dt=dt,
+        frame_every=frame_every,
+        delay=delay,
+        record_every=runner.record_every,
+        relay_every=cfg.scale.excitation_relay_every,
+        max_odometry_gap_s=MAX_ODOMETRY_GAP_S,
+        window_s=cfg.scale.e_window_s,
+        adj=adj,
+        pair_ends=pairs.astype(np.int64),
+        des=des,
+        has_des=has_des,
+        des_yaw=des_yaw,
+        use_des_yaw=bool(cfg.formation.desired_yaw_rad),
+        speed=speed,
+        seed=int(runner.seed),
+        loss=float(runner.loss),
+        lag_v=min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0,
+        lag_w=min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0,
     )
+    noise = team_kernel.Noise(
+        bearing=bearing_noise,
+        sigma_bearing_rad=float(runner.bearing_noise_rad),
+        odometry=vel_noise,
+        sigma_v_m_s=float(runner.velocity_noise_m_s),
+        sigma_w_rad_s=float(runner.yaw_rate_noise_rad_s),
+        random_motion=rand_noise,
+    )
+    state = team_kernel.State(p, yaw, offsets, p_hat, yaw_hat, chi, u_cmd, rand_z)
+    trace = team_kernel.Trace(
+        rec.t_s, rec.p_ned, rec.yaw_rad, rec.v_ned, rec.p_hat_ned, rec.yaw_hat_rad,
+        rec.chi_hat, rec.lambda_bar_est, rec.e_index_est, rec.k_e, rec.w_l,
+    )  # fmt: skip
+    team_kernel.simulate(Gains.of(cfg), team, noise, state, trace)
     if progress is not None:
         progress(1.0)
     return rec
