@@ -20,8 +20,8 @@ from typer.testing import CliRunner
 
 from groundstation.cli import app
 from groundstation.gcs.record import Recorder
-from groundstation.gcs.standin import StandinConfig, scripted_status
 from messages.codec import encode
+from tests.groundstation.standin import StandinConfig, scripted_status
 
 FORMATION = """
 [[agent]]
