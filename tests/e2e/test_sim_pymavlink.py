@@ -7,6 +7,8 @@ checks hold whatever the wall-clock jitter of this machine.
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import time
 from typing import Any
 
@@ -14,12 +16,36 @@ import pytest
 from pymavlink import mavutil
 
 from messages import mavlink as mv
-from sim.launch import start_sim, stop_sim
-from sim.server import free_port_base
+from sim.launch import READY_LINE, start_sim, stop_sim
 
 pytestmark = pytest.mark.e2e
 
 SPEEDUP = 2.0
+
+
+def start_sim_on_kernel_ports(*args: str, timeout_s: float = 20.0) -> tuple[subprocess.Popen, int]:
+    """``python -m sim.cli --quiet ARGS`` (with ``--tcp-base 0``: its TCP server on a port the
+    kernel chose, no free range checked and bound later, issue 23); returns the process once
+    it is ready and vehicle 0's port from its endpoint line."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.cli", "--quiet", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout_s
+    lines: list[str] = []
+    port = None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        lines.append(line)
+        if port is None and "tcp 127.0.0.1:" in line:
+            port = int(line.rsplit(":", 1)[1])
+        if READY_LINE in line and port is not None:
+            return proc, port
+        if not line and proc.poll() is not None:
+            break
+    proc.kill()
+    raise RuntimeError("simulator did not start:\n" + "".join(lines))
 
 
 class Link:
@@ -69,19 +95,11 @@ class Link:
 
 
 def test_pymavlink_flies_ardupilot_guided():
-    base = free_port_base(1, span=60)
-    proc = start_sim(
-        "--vehicles",
-        "1",
-        "--flavour",
-        "ardupilot",
-        "--tcp-base",
-        str(base),
-        "--speedup",
-        str(SPEEDUP),
+    proc, port = start_sim_on_kernel_ports(
+        "--vehicles", "1", "--flavour", "ardupilot", "--tcp-base", "0", "--speedup", str(SPEEDUP)
     )
     try:
-        link = Link(f"tcp:127.0.0.1:{base}")
+        link = Link(f"tcp:127.0.0.1:{port}")
         link.pump(lambda: "HEARTBEAT" in link.latest)
         # like ArduCopter, nothing streams until asked; the position only after the EKF warm-up
         for msg_id in (30, 32, 33):  # ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT
@@ -144,12 +162,14 @@ def test_pymavlink_flies_ardupilot_guided():
 
 
 def test_px4_offboard_loss_failsafe_on_time():
-    base = free_port_base(1)
+    # the client's port first, the kernel's choice and bound; the vehicle's own port as well
+    link = Link("udpin:127.0.0.1:0")
+    base = link.m.port.getsockname()[1]
     proc = start_sim(
-        "--vehicles", "1", "--port-base", str(base), "--gcs-port", "0", "--speedup", str(SPEEDUP)
-    )
+        "--vehicles", "1", "--port-base", str(base), "--bind-base", "0", "--gcs-port", "0",
+        "--speedup", str(SPEEDUP),
+    )  # fmt: skip
     try:
-        link = Link(f"udpin:127.0.0.1:{base}")
         link.pump(lambda: {"HEARTBEAT", "LOCAL_POSITION_NED"} <= link.latest.keys())
         assert link.hb().autopilot == mv.MAV_AUTOPILOT_PX4
         assert link.command(mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_ACCEPTED
