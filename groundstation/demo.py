@@ -32,7 +32,7 @@ from messages.codec import MessageError, decode, encode
 from messages.command import COMMAND_TOPIC, FleetCommand
 from messages.keys import key
 from messages.sim import Truth
-from messages.transport import ZenohSettings, loopback_endpoint, open_session
+from messages.transport import TransportError, ZenohSettings, loopback_endpoint, open_session
 from onboard.daemon.config import MIN_MAINTENANCE_AGENTS
 from onboard.geometry import FloatArray, IntArray, bearings_body
 from onboard.graph import complete_graph, normalize_edges, reciprocal_pairs
@@ -242,7 +242,10 @@ class Evaluator:
         self.pairs = reciprocal_pairs(plan.edges)
         self.desired_beta, _ = bearings_body(plan.p_ned, plan.yaw_rad, plan.edges)
         self.camera = SensingModel(CAMERA_FOV_DEG, CAMERA_RANGE_M)
-        self.session = open_session(settings)
+        try:
+            self.session = open_session(settings)
+        except TransportError as exc:  # the CLI prints RuntimeErrors as one line, exit 1
+            raise RuntimeError(f"the demo's own Zenoh session: {exc}") from None
         self._lock = threading.Lock()
         self.status: dict[int, VehicleStatus] = {}
         self.truth: dict[int, Truth] = {}

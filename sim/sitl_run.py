@@ -82,7 +82,7 @@ def run_sitl(
 ) -> int:
     """Run until SIGINT/SIGTERM (exit status 0) or a SITL process dies (1); 2 if SITL cannot
     start. Messages are one line each."""
-    from messages.transport import ZenohSettings, open_session, publisher_put
+    from messages.transport import TransportError, ZenohSettings, open_session, publisher_put
     from sim.launch import READY_LINE
 
     try:
@@ -98,14 +98,15 @@ def run_sitl(
     bridge: SitlBridge | None = None
     code = 0
     try:
+        if zenoh_listen is not None or zenoh_connect:  # first: a port in use starts no SITL
+            session = open_session(
+                ZenohSettings(listen=[zenoh_listen] if zenoh_listen else [], connect=zenoh_connect)
+            )
         fleet.start()
         bridge = SitlBridge([fleet.ports(i).serial1 for i in range(fleet.n)], SITL_HOME,
                             options.speedup)  # fmt: skip
         bridge.connect()  # starts the instances' clocks together
-        if zenoh_listen is not None or zenoh_connect:
-            session = open_session(
-                ZenohSettings(listen=[zenoh_listen] if zenoh_listen else [], connect=zenoh_connect)
-            )
+        if session is not None:
             put = publisher_put(session)
             bridge.hooks.append(
                 SitlPublisher(camera, fleet_name, put, options.speedup, ids, options.stamps)
@@ -140,7 +141,7 @@ def run_sitl(
                 end = "\r" if sys.stdout.isatty() else "\n"
                 sys.stdout.write(bridge.status() + end)
                 sys.stdout.flush()
-    except (SitlError, ConnectionError, OSError) as exc:
+    except (SitlError, ConnectionError, OSError, TransportError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         code = 2
     finally:

@@ -26,8 +26,10 @@ pymavlink backend does. Tested against both simulated flavours: PX4 (OFFBOARD) a
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import socket
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -69,6 +71,37 @@ _MAVSDK_RESULTS: dict[str, tuple[int | None, bool]] = {
     "FAILED": (mv.RESULT_FAILED, True),
     "UNSUPPORTED": (mv.RESULT_UNSUPPORTED, False),
 }
+
+
+_LISTENING = {"udpin": socket.SOCK_DGRAM, "tcpin": socket.SOCK_STREAM}
+
+
+def open_failure_cause(murl: str, result_name: str) -> Exception:
+    """Why MAVSDK's ``add_any_connection(murl)`` returned ``result_name`` (it says only its
+    enum name): the error a retry loop can classify (:func:`messages.fatal.is_permanent`).
+
+    ``CONNECTION_URL_INVALID`` is a :class:`ValueError` (permanent). A ``BIND_ERROR`` or
+    ``SOCKET_ERROR`` on a listening URL (``udpin://HOST:PORT``, ``tcpin://``) is the
+    :class:`OSError` of binding that address ourselves, with its errno (a port another process
+    holds: ``EADDRINUSE``, permanent); anything else is a :class:`ConnectionError` (retried)."""
+    if result_name == "CONNECTION_URL_INVALID":
+        return ValueError(f"MAVSDK rejected the connection URL {murl!r}")
+    scheme, _, rest = murl.partition("://")
+    if result_name in ("BIND_ERROR", "SOCKET_ERROR") and scheme in _LISTENING:
+        host, _, port = rest.rpartition(":")
+        try:
+            addr = (host or "0.0.0.0", int(port))
+            probe = socket.socket(socket.AF_INET, _LISTENING[scheme])
+        except (ValueError, OSError) as exc:
+            return exc
+        try:
+            probe.bind(addr)
+        except OSError as exc:
+            return exc
+        finally:
+            probe.close()
+        return OSError(errno.EAGAIN, f"{result_name} but {host}:{port} binds now")
+    return ConnectionError(result_name)
 
 
 def mavsdk_url(url: str) -> str:
@@ -168,7 +201,8 @@ class MavsdkLink(LinkBookkeeping):
         result = self._mavsdk.add_any_connection(murl)
         if result != ConnectionResult.SUCCESS:
             self.close()
-            raise LinkError(f"cannot open {murl!r}: {result.name}")
+            cause = open_failure_cause(murl, result.name)
+            raise LinkError(f"cannot open {murl!r}: {result.name} ({cause})") from cause
         system, others = self._find_autopilot(timeout_s)
         if system is None:
             self.close()

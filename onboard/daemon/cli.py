@@ -65,9 +65,43 @@ def agent(
     ] = 0.0,
 ) -> None:
     """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
+    from messages.fatal import FatalThreads
+
+    # first thing: a worker thread that dies at any time (a camera capture at startup, the
+    # flight sequence, the link's loops) stops the daemon, which holds and exits 1 saying why,
+    # instead of running on half alive (messages/fatal.py, issue 23)
+    stop = threading.Event()
+    fatal = FatalThreads(on_fatal=lambda _text: stop.set()).install()
+    try:
+        _run_agent(
+            stop, agent_id, config, mavlink, backend, json_status, log_level, bearings, camera,
+            markers, camera_device, system_id, clock_offset,
+        )  # fmt: skip
+    finally:
+        fatal.uninstall()
+    if fatal.message:  # a worker died: the daemon held and stopped, and says why
+        typer.echo(f"error: {fatal.message}", err=True)
+        raise typer.Exit(1)
+
+
+def _run_agent(
+    stop: threading.Event,
+    agent_id: int,
+    config: Path,
+    mavlink: str | None,
+    backend: str | None,
+    json_status: bool,
+    log_level: str,
+    bearings: str | None,
+    camera: list[Path] | None,
+    markers: Path | None,
+    camera_device: str | None,
+    system_id: int | None,
+    clock_offset: float,
+) -> None:
+    """The body of :func:`agent`; ``stop`` is set by the fatal-thread hook (and the signals)."""
     import msgspec
 
-    from messages.fatal import FatalThreads
     from messages.rigidity import RIGIDITY_KINDS
     from messages.sim import clock_key
     from messages.transport import TransportError
@@ -143,7 +177,11 @@ def agent(
         # time they arrive 1/speedup wall seconds apart, and a wall-clock heartbeat timeout would
         # declare the link lost between two of them. Learn the speed before opening the link.
         t0 = time.monotonic()
-        while follower.now() is None and time.monotonic() - t0 < SIM_CLOCK_WAIT_S:
+        while (
+            follower.now() is None
+            and time.monotonic() - t0 < SIM_CLOCK_WAIT_S
+            and not stop.is_set()
+        ):
             time.sleep(0.05)
         slowdown = 1.0 / min(1.0, max(follower.speedup, 1e-3))
     else:
@@ -198,13 +236,12 @@ def agent(
     else:
         source = SimCameraSource(peers, drops, clock.now)
     daemon = AgentDaemon(fleet, agent_id, link, peers, source, clock, drops, url, on_status)
-    # a worker thread that dies (the flight sequence, the link's loops) stops the daemon, which
-    # holds and exits 1 saying why, instead of running on half alive (messages/fatal.py)
-    fatal = FatalThreads(on_fatal=lambda _text: daemon.stop_event.set()).install()
+    daemon.stop_event = stop  # set already if a thread died while the daemon was being built
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: daemon.stop_event.set())
     try:
-        daemon.run()
+        if not stop.is_set():  # a thread died during startup: nothing to fly, clean up
+            daemon.run()
     finally:
         if capture is not None:
             capture.close()
@@ -225,10 +262,6 @@ def agent(
                 lc.signing_unavailable,
             )  # fmt: skip
         _close_all(link.close, peers.close)
-        fatal.uninstall()
-    if fatal.message:  # a worker died: the daemon held and stopped, and says why
-        typer.echo(f"error: {fatal.message}", err=True)
-        raise typer.Exit(1)
 
 
 TLS_PEER_WAIT_S = 10.0

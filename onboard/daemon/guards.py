@@ -64,7 +64,8 @@ class GuardInput:
     setpoint: Setpoint = ZERO_SETPOINT
     """The core's setpoint (heading frame, :mod:`onboard.autopilot.base`)."""
     lost_peers: tuple[int, ...] = ()
-    """Graph neighbours seen once and without liveliness for the loss time."""
+    """Graph neighbours seen once and without liveliness, or silent (no peer payload; a
+    stalled vehicle keeps its token), for the loss time (:mod:`onboard.daemon.presence`)."""
     skewed_peers: tuple[int, ...] = ()
     """Neighbours whose clocks disagree with ours (:mod:`onboard.daemon.peer_clock`)."""
     autopilot_stale: bool = False

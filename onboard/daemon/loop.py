@@ -68,6 +68,7 @@ from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peer_clock import PeerClockCheck
 from onboard.daemon.peers import DropCounter, PeerLink
+from onboard.daemon.presence import PeerPresence
 from onboard.daemon.replay import SeqWindow
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph, formation_edges
@@ -91,7 +92,8 @@ MIN_TICK_SPEEDUP = 0.05
 MAX_GAP_S = 0.5
 """A longer gap between two ticks is skipped rather than integrated."""
 PEER_LOST_HOLD_S = 2.0
-"""A peer without a liveliness token for this long is out of the graph."""
+"""A peer without a liveliness token, or without a peer payload, for this long is out of the
+graph (:mod:`onboard.daemon.presence`: a stalled vehicle keeps its token)."""
 STEP_ERROR_ALARM_S = 1.0
 """After an exception escaped a core tick the vehicle holds with alarm ``step_error`` this long."""
 
@@ -249,8 +251,7 @@ class AgentDaemon:
         # the formation's neighbours, and those only the rigidity layer talks to
         self._neighbours = frozenset(self.core.neighbours) | self.core.rigidity_neighbours
         self._last_core_t: float | None = None
-        self._seen: set[int] = set()
-        self._lost_since: dict[int, float] = {}
+        self.presence = PeerPresence(self._graph_ids, agent_id, PEER_LOST_HOLD_S)
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
         self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.safety.peer_timeout_s)
@@ -368,19 +369,12 @@ class AgentDaemon:
             self._actions.put((cmd.action, cmd))
 
     def _update_peers(self, now_s: float) -> None:
-        alive = self.peers.alive_peers()
-        self._seen |= alive
-        for j in self._graph_ids:
-            if j == self.id or j not in self._seen:
-                continue
-            if j in alive:
-                self._lost_since.pop(j, None)
-            else:
-                self._lost_since.setdefault(j, now_s)
+        self.presence.update(self.peers.alive_peers(), now_s)
 
     def lost_peers(self, now_s: float) -> list[int]:
-        """Peers that were seen and have been without a liveliness token for 2 s or more."""
-        return sorted(j for j, t in self._lost_since.items() if now_s - t >= PEER_LOST_HOLD_S)
+        """Peers that were seen and have been without a liveliness token, or silent (no peer
+        payload), for :data:`PEER_LOST_HOLD_S` or more (:class:`PeerPresence`)."""
+        return self.presence.lost(now_s)
 
     def _rigid_without(self, key: frozenset[int]) -> bool:
         """Is the planned framework still IBR in R^3 x S^1 among the agents that remain?"""
@@ -479,6 +473,8 @@ class AgentDaemon:
             now_s = self._now()
             if now_s is None:
                 continue  # no time yet: nothing can be stamped
+            if self._stall_mono == mono:  # we stalled, not our peers: their silence restarts
+                self.presence.restart(now_s)
             step += 1
             if not tel.connected:  # the core waits; the ground station still hears why
                 self._alarms = [Alarm.AUTOPILOT_LOST.value]
@@ -551,6 +547,7 @@ class AgentDaemon:
         inbox = [m for m in self.peers.drain(self._neighbours) if self._admit(m, now_s)]
         for msg in inbox:
             self.clock_check.observe(msg.sender, msg.stamp_s, now_s)
+            self.presence.heard(msg.sender, now_s)
         out: list[Payload] = []
         if last is not None and MAX_CORE_DT_S < now_s - last <= MAX_GAP_S:
             n = math.ceil((now_s - last) / MAX_CORE_DT_S)
@@ -571,7 +568,7 @@ class AgentDaemon:
         log.warning(
             "clock went back from %.3f to %.3f s: restarting time-keyed state", last_s, now_s
         )
-        self._lost_since.clear()
+        self.presence.restart(now_s)
         self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.safety.peer_timeout_s)
         self._step_error_s = -math.inf
         self._newest_frame_s = -math.inf

@@ -57,7 +57,7 @@ def running_fleet(
             "-m", "sim.cli", "--vehicles", str(N), "--layout", str(tmp_path / "start.toml"),
             "--zenoh", loopback_endpoint(ports.zenoh), "--fleet", name,
             "--port-base", str(ports.mavlink), "--gcs-port", str(ports.gcs),
-            "--bind-base", str(ports.mavlink + N + 5), "--camera-fov", "360", "--quiet",
+            "--bind-base", "0", "--camera-fov", "360", "--quiet",
             *(["--keys", str(keys)] if keys is not None else []),
         ],
     )  # fmt: skip

@@ -83,14 +83,18 @@ def test_sim_zenoh_port_in_use_is_one_line() -> None:
     _one_line_error(res.stderr, "Address already in use")
 
 
-def test_agent_with_its_mavlink_udpin_port_in_use_exits(tmp_path: Path) -> None:
+@pytest.mark.parametrize("backend", ["pymavlink", "mavsdk"])
+def test_agent_with_its_mavlink_udpin_port_in_use_exits(tmp_path: Path, backend: str) -> None:
     """It retried the bind every second forever; now the flight thread's permanent error ends
-    the daemon (exit 1, one line), well within the test's timeout."""
+    the daemon (exit 1, one line), well within the test's timeout. With MAVSDK too: its
+    "cannot open" carried no cause and was retried forever."""
     zenoh = free_port_base(4)
     with held_port(socket.SOCK_DGRAM) as port:
         fleet = fleet_file(tmp_path, f'[mavlink]\nurl = "udpin:127.0.0.1:{port}"', zenoh_base=zenoh)
         t0 = time.monotonic()
-        res = _bearingflock("agent", "--id", "0", "--config", str(fleet), timeout_s=40)
+        res = _bearingflock(
+            "agent", "--id", "0", "--config", str(fleet), "--backend", backend, timeout_s=40
+        )
         took = time.monotonic() - t0
     assert res.returncode == 1, res.stderr
     assert "Traceback" not in res.stderr.split("error:")[-1]

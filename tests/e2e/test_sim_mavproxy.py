@@ -15,6 +15,7 @@ import pytest
 
 from sim.launch import start_sim
 from sim.server import free_port_base
+from tests.e2e.sim_ports import start_sim_on_kernel_ports
 
 pytestmark = pytest.mark.e2e
 
@@ -66,14 +67,19 @@ class MavProxy:
 
 @pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
 def test_mavproxy_params_and_mode(flavour, tmp_path):
-    base = free_port_base(1, span=60)
-    if flavour == "ardupilot":
-        sim = start_sim("--vehicles", "1", "--flavour", "ardupilot", "--tcp-base", str(base))
+    if flavour == "ardupilot":  # its TCP server on a port the kernel chose
+        sim, port = start_sim_on_kernel_ports(
+            "--vehicles", "1", "--flavour", "ardupilot", "--tcp-base", "0"
+        )
         master, n_params, sysid_param, mode, new_mode = (
-            f"tcp:127.0.0.1:{base}", 14, "SYSID_THISMAV", "STABILIZE", "GUIDED",
+            f"tcp:127.0.0.1:{port}", 14, "SYSID_THISMAV", "STABILIZE", "GUIDED",
         )  # fmt: skip
-    else:
-        sim = start_sim("--vehicles", "1", "--port-base", str(base), "--gcs-port", str(base + 10))
+    else:  # MAVProxy's udpin port must be known before it binds: a checked free range
+        base = free_port_base(1, span=60)
+        sim = start_sim(
+            "--vehicles", "1", "--port-base", str(base), "--bind-base", "0",
+            "--gcs-port", str(base + 10),
+        )  # fmt: skip
         master, n_params, sysid_param, mode, new_mode = (
             f"udpin:127.0.0.1:{base + 10}", 12, "MAV_SYS_ID", "LOITER", None,
         )  # fmt: skip

@@ -15,7 +15,7 @@ from pymavlink import mavutil
 
 from messages import mavlink as mv
 from sim.launch import start_sim, stop_sim
-from sim.server import free_port_base
+from tests.e2e.sim_ports import start_sim_on_kernel_ports
 
 pytestmark = pytest.mark.e2e
 
@@ -69,19 +69,11 @@ class Link:
 
 
 def test_pymavlink_flies_ardupilot_guided():
-    base = free_port_base(1, span=60)
-    proc = start_sim(
-        "--vehicles",
-        "1",
-        "--flavour",
-        "ardupilot",
-        "--tcp-base",
-        str(base),
-        "--speedup",
-        str(SPEEDUP),
+    proc, port = start_sim_on_kernel_ports(
+        "--vehicles", "1", "--flavour", "ardupilot", "--tcp-base", "0", "--speedup", str(SPEEDUP)
     )
     try:
-        link = Link(f"tcp:127.0.0.1:{base}")
+        link = Link(f"tcp:127.0.0.1:{port}")
         link.pump(lambda: "HEARTBEAT" in link.latest)
         # like ArduCopter, nothing streams until asked; the position only after the EKF warm-up
         for msg_id in (30, 32, 33):  # ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT
@@ -144,12 +136,14 @@ def test_pymavlink_flies_ardupilot_guided():
 
 
 def test_px4_offboard_loss_failsafe_on_time():
-    base = free_port_base(1)
+    # the client's port first, the kernel's choice and bound; the vehicle's own port as well
+    link = Link("udpin:127.0.0.1:0")
+    base = link.m.port.getsockname()[1]
     proc = start_sim(
-        "--vehicles", "1", "--port-base", str(base), "--gcs-port", "0", "--speedup", str(SPEEDUP)
-    )
+        "--vehicles", "1", "--port-base", str(base), "--bind-base", "0", "--gcs-port", "0",
+        "--speedup", str(SPEEDUP),
+    )  # fmt: skip
     try:
-        link = Link(f"udpin:127.0.0.1:{base}")
         link.pump(lambda: {"HEARTBEAT", "LOCAL_POSITION_NED"} <= link.latest.keys())
         assert link.hb().autopilot == mv.MAV_AUTOPILOT_PX4
         assert link.command(mv.CMD_COMPONENT_ARM_DISARM, 1) == mv.RESULT_ACCEPTED

@@ -10,15 +10,46 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega, common
 
 from sim.autopilot.signing import enable_signing, is_signed
-from sim.server import SimConfig, SimServer, free_port_base
+from sim.server import SimConfig, SimServer
 from sim.world import grid_layout
 
+_HELD: list[socket.socket] = []
+"""Client sockets bound for vehicles 1.. that no test reads (closed with the next server)."""
 
-def _server(flavour: str = "px4", n: int = 2, **kw) -> tuple[SimServer, int]:
-    base = free_port_base(n, span=10 * n + 50)
+
+def _client_sockets(n: int, tries: int = 100) -> list[socket.socket]:
+    """``n`` UDP sockets on consecutive loopback ports, the first one the kernel's choice: bound
+    (held) before the simulator starts, so no other process can take them in between (a range
+    checked free and bound later could be taken meanwhile, issue 23 defect 13)."""
+    for _ in range(tries):
+        first = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        first.bind(("127.0.0.1", 0))
+        socks = [first]
+        try:
+            for k in range(1, n):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(s)
+                s.bind(("127.0.0.1", first.getsockname()[1] + k))
+            return socks
+        except OSError:
+            for s in socks:
+                s.close()
+    raise RuntimeError(f"no {n} consecutive free UDP ports")
+
+
+def _server(flavour: str = "px4", n: int = 2, **kw) -> tuple[SimServer, socket.socket]:
+    """A started simulator on ports the kernel chose (its own UDP ports, TCP servers), sending
+    to client sockets the test holds; returns it and vehicle 0's client socket."""
+    for s in _HELD:
+        s.close()
+    socks = _client_sockets(n)
+    _HELD[:] = socks[1:]
     p, yaw = grid_layout(n)
-    cfg = SimConfig(p, yaw, flavour=flavour, client_base=base, gcs_port=None, tcp_base=base, **kw)
-    return SimServer(cfg).start(), base
+    base = socks[0].getsockname()[1]
+    cfg = SimConfig(
+        p, yaw, flavour=flavour, client_base=base, gcs_port=None, bind_base=0, tcp_base=0, **kw
+    )
+    return SimServer(cfg).start(), socks[0]
 
 
 def _wait(pred, timeout: float = 3.0) -> None:
@@ -29,9 +60,8 @@ def _wait(pred, timeout: float = 3.0) -> None:
 
 
 class UdpClient:
-    def __init__(self, port: int, dialect=common, sysid: int = 245) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", port))
+    def __init__(self, sock: socket.socket, dialect=common, sysid: int = 245) -> None:
+        self.sock = sock  # bound already (:func:`_client_sockets`)
         self.sock.settimeout(0.2)
         self.mav = dialect.MAVLink(None, srcSystem=sysid, srcComponent=190)
         self.parser = dialect.MAVLink(None)
@@ -65,8 +95,8 @@ class UdpClient:
 
 
 def test_garbage_bad_crc_unknown_ids_are_counted_and_survived():
-    srv, base = _server("px4", n=1)
-    c = UdpClient(base)
+    srv, sock = _server("px4", n=1)
+    c = UdpClient(sock)
     try:
         c.recv_until("HEARTBEAT")
         counters = srv.autopilots[0].counters
@@ -94,8 +124,8 @@ def test_garbage_bad_crc_unknown_ids_are_counted_and_survived():
 
 
 def test_commands_for_other_systems_are_ignored_on_the_wire():
-    srv, base = _server("px4", n=2)
-    c0 = UdpClient(base)
+    srv, sock = _server("px4", n=2)
+    c0 = UdpClient(sock)
     try:
         c0.recv_until("HEARTBEAT")
         c0.send(common.MAVLink_command_long_message(2, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
@@ -107,8 +137,8 @@ def test_commands_for_other_systems_are_ignored_on_the_wire():
 
 
 def test_replies_go_to_the_sender_address_too():
-    srv, base = _server("px4", n=1)
-    listener = UdpClient(base)
+    srv, sock = _server("px4", n=1)
+    listener = UdpClient(sock)
     other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     other.bind(("127.0.0.1", 0))
     other.settimeout(0.2)
@@ -136,8 +166,8 @@ def test_replies_go_to_the_sender_address_too():
 
 def test_signing_rejects_unsigned_and_wrongly_signed_commands():
     key = hashlib.sha256(b"correct horse").digest()
-    srv, base = _server("px4", n=1, signing_key=key)
-    c = UdpClient(base)
+    srv, sock = _server("px4", n=1, signing_key=key)
+    c = UdpClient(sock)
     try:
         hb = c.recv_until("HEARTBEAT")
         assert is_signed(hb.get_msgbuf())  # the vehicle signs what it sends
@@ -164,9 +194,9 @@ def test_signing_rejects_unsigned_and_wrongly_signed_commands():
 
 
 def test_tcp_link_serves_several_clients():
-    srv, base = _server("ardupilot", n=2, transport="tcp")
+    srv, _sock = _server("ardupilot", n=2, transport="tcp")
     try:
-        clients = [socket.create_connection(("127.0.0.1", base + 10)) for _ in range(2)]
+        clients = [socket.create_connection(srv.links[1].address) for _ in range(2)]
         for s in clients:
             s.settimeout(3.0)
             parser = ardupilotmega.MAVLink(None)
@@ -194,10 +224,13 @@ def test_tcp_link_serves_several_clients():
 
 
 def test_port_in_use_is_a_clear_error():
-    srv, base = _server("px4", n=1)
+    srv, sock = _server("px4", n=1)
     try:
         p, yaw = grid_layout(1)
+        taken = srv.links[0].address[1]  # the first simulator's own port
         with pytest.raises(OSError):
-            SimServer(SimConfig(p, yaw, client_base=base, gcs_port=None))
+            SimServer(
+                SimConfig(p, yaw, client_base=sock.getsockname()[1], gcs_port=None, bind_base=taken)
+            )
     finally:
         srv.stop()
