@@ -14,12 +14,14 @@ At each camera frame the filter predicts from the previous frame with each vehic
 odometry (zero-order hold; odometry older than ``stale_s`` counts as ``stale_odometry`` and
 enters as zero input with a large uncertainty) and updates with the frame's bearings.
 
-Team membership (``fixed_ids=None``, live): a vehicle joins when its first odometry arrives (at a
-ring prior: the filter knows nothing of where it is); one silent for more than ``silent_s``
-(no odometry, no frame) is dropped from the state (its block marginalized out; a dropped
-reference hands over to the next vehicle: the state is re-expressed in that vehicle's frame with
-the covariance mapped through the change of frame); it is re-added when it is heard again.
-Every join and drop is an :class:`Event` with a message.
+Team membership (``fixed_ids=None``, live): the first vehicle heard with odometry and a camera
+frame is the reference; another with odometry joins when a member has a bearing to it, placed
+``prior_radius_m`` along that bearing (the filter does not know the scale), its yaw from its own
+bearing back to that member when it has one (levelled bearings), with the prior's standard
+deviations. One silent for more than ``silent_s`` (no odometry, no frame) is dropped from the
+state (its block marginalized out; a dropped reference hands over to the next vehicle: the state
+is re-expressed in that vehicle's frame, the covariance mapped through the change of frame); it
+is re-added when it is heard again. Every join and drop is an :class:`Event` with a message.
 
 Bad input is counted (:attr:`EkfLoop.counts`) and skipped, never raised: non-finite odometry,
 bearings or estimates, samples older than the filter's time by more than ``late_s`` (stale),
@@ -28,9 +30,10 @@ bearings that are not unit vectors or name a vehicle not in the state.
 Cross-check: each vehicle's EKF pose in the reference's frame beside the daemons' estimates
 expressed in the same frame (``R_z(psi_ref)^T (p_j - p_ref)``, ``psi_j - psi_ref``; the daemons'
 shared frame is arbitrary, only relative poses compare). The disagreement is the distance
-between the two positions; it raises an alarm (a counted ``disagreement`` event) above
-``max_disagreement_m`` once the EKF is confident about that vehicle (its largest position
-standard deviation below half the bound), and a ``agreement`` event when it falls back.
+between the two positions; it raises an alarm (a counted ``disagreement`` event) when it stays
+above ``max_disagreement_m`` for ``alarm_hold_s`` once the EKF has settled on that vehicle (in
+the filter for ``settle_s``, its largest position standard deviation below half the bound), and
+an ``agreement`` event when it falls below 0.8 times the bound.
 """
 
 from __future__ import annotations
@@ -76,6 +79,11 @@ class EkfLoopConfig:
     """A sample stamped this much before the filter's time is stale: counted and skipped."""
     max_disagreement_m: float = DEFAULT_MAX_DISAGREEMENT_M
     daemon_stale_s: float = 3.0
+    settle_s: float = 10.0
+    """No alarm about a vehicle in its first seconds in the filter: a bearing-only EKF started
+    from an uninformed prior is overconfident until the motion has revealed the scale."""
+    alarm_hold_s: float = 1.0
+    """The disagreement must last this long to raise the alarm; it clears below 0.8 x bound."""
     """A daemon estimate older than this (vs. the filter's time) is not compared."""
 
 
@@ -195,6 +203,9 @@ class EkfLoop:
     heard_s: dict[int, float] = field(default_factory=dict)
     daemons: dict[int, DaemonEstimate] = field(default_factory=dict)
     alarms: set[int] = field(default_factory=set)
+    last_frame: dict[int, BearingShare] = field(default_factory=dict)
+    joined_s: dict[int, float] = field(default_factory=dict)
+    over_since_s: dict[int, float] = field(default_factory=dict)
     dropped: set[int] = field(default_factory=set)
     """Vehicles dropped as silent and not back yet."""
     max_events: int = 200
@@ -229,29 +240,62 @@ class EkfLoop:
         return self.t_s is not None and stamp_s < self.t_s - self.cfg.late_s
 
     # --- membership (live) -------------------------------------------------------------------
-    def _join(self, i: int, t_s: float) -> None:
-        was_dropped = i in self.dropped
-        self.dropped.discard(i)
-        self.ids.append(i)
-        n = len(self.ids)
-        if n == 2:
-            self.ids.sort()
-            self.state = self._prior_state(2)
-            self.t_s = None  # a new filter: no prediction before its first frame
-        elif self.state is not None:
-            a = 2.0 * np.pi * (n - 1) / max(n, 3)
-            p = self.cfg.prior_radius_m * np.array([math.cos(a), math.sin(a), 0.0])
-            self.state = augment(
-                self.state,
-                p,
-                np.eye(3),
-                self.cfg.prior_sigma_p_m,
-                self.cfg.prior_sigma_theta_rad,
-            )
-        if was_dropped:
-            self._event(t_s, "re_added", i, f"vehicle {i} re-added: heard again")
-        else:
-            self._event(t_s, "joined", i, f"vehicle {i} joined the filter")
+    def _pose_of(self, i: int) -> tuple[FloatArray, FloatArray]:
+        """Mean pose of member ``i`` in the reference's frame (the reference: ``(0, I)``)."""
+        k = self.ids.index(i)
+        if k == 0 or self.state is None:
+            return np.zeros(3), np.eye(3)
+        return self.state.p_ref[k - 1], self.state.rot_ref_body[k - 1]
+
+    def _yaw_prior(self, i: int, j: int, u_ref: FloatArray, t_s: float) -> float:
+        """Yaw of newcomer ``i`` in the reference's frame from its own recent bearing to member
+        ``j``, ``u_ref`` the direction from ``i`` to ``j`` there (levelled bearings:
+        ``R_z(psi_i) beta_ij = u``); ``0`` without one."""
+        f = self.last_frame.get(i)
+        if f is None or abs(f.stamp_s - t_s) > self.cfg.stale_s:
+            return 0.0
+        for target, b in zip(f.targets, f.beta_body, strict=False):
+            if target == j and _finite(*b) and len(b) == 3 and math.hypot(b[0], b[1]) > 0.1:
+                return _wrap(math.atan2(u_ref[1], u_ref[0]) - math.atan2(b[1], b[0]))
+        return 0.0
+
+    def _admit(self, frame: BearingShare) -> None:
+        """Live membership: a vehicle with odometry enters the state when a member (or, for an
+        empty team, the frame's sender itself, then the reference) has a bearing to it, at
+        ``prior_radius_m`` along that bearing, its yaw from its own bearing back (module doc)."""
+        s = frame.sender
+        if s not in self.latest:
+            return
+        if not self.ids:
+            self._event(frame.stamp_s, *self._joined_words(s, frame.stamp_s))
+            self.ids.append(s)
+        if s not in self.ids:
+            return
+        for target, b in zip(frame.targets, frame.beta_body, strict=False):
+            if target in self.ids or target not in self.latest or target == s:
+                continue
+            bv = np.asarray(b, dtype=float)
+            if bv.shape != (3,) or not np.all(np.isfinite(bv)) or np.linalg.norm(bv) < 0.5:
+                continue
+            p_s, r_s = self._pose_of(s)
+            u = r_s @ (bv / np.linalg.norm(bv))
+            p = p_s + self.cfg.prior_radius_m * u
+            rot = rot_z(self._yaw_prior(target, s, -u, frame.stamp_s))
+            sig_p, sig_th = self.cfg.prior_sigma_p_m, self.cfg.prior_sigma_theta_rad
+            if self.state is None:
+                self.state = initial_state(p[None], rot[None], sig_p, sig_th)
+                self.t_s = None  # a new filter: no prediction before its first frame
+            else:
+                self.state = augment(self.state, p, rot, sig_p, sig_th)
+            self.ids.append(target)
+            self._event(frame.stamp_s, *self._joined_words(target, frame.stamp_s))
+
+    def _joined_words(self, i: int, t_s: float) -> tuple[str, int, str]:
+        self.joined_s[i] = t_s
+        if i in self.dropped:
+            self.dropped.discard(i)
+            return "re_added", i, f"vehicle {i} re-added: heard again"
+        return "joined", i, f"vehicle {i} joined the filter"
 
     def _drop(self, i: int, t_s: float) -> None:
         k = self.ids.index(i)
@@ -292,8 +336,6 @@ class EkfLoop:
             return
         self.latest[m.sender] = m
         self.heard_s[m.sender] = max(self.heard_s.get(m.sender, m.stamp_s), m.stamp_s)
-        if self.fixed_ids is None and m.sender not in self.ids:
-            self._join(m.sender, m.stamp_s)
 
     def add_daemon_estimate(
         self, sender: int, stamp_s: float, p_hat_ned: Any, yaw_hat_rad: float
@@ -319,9 +361,12 @@ class EkfLoop:
         if self._is_late(t):
             self.count("stale_sample")
             return False
-        if frame.sender in self.ids:
+        if frame.sender in self.latest:
             self.heard_s[frame.sender] = max(self.heard_s.get(frame.sender, t), t)
         self._drop_silent(t)
+        if self.fixed_ids is None:
+            self.last_frame[frame.sender] = frame
+            self._admit(frame)
         if frame.sender not in self.ids:
             self.count("bearings_from_vehicle_without_odometry")
             return False
@@ -423,20 +468,26 @@ class EkfLoop:
     def _check_disagreement(self) -> None:
         bound = self.cfg.max_disagreement_m
         ekf = self.poses()
-        assert self.t_s is not None
+        t = self.t_s
+        assert t is not None
         for i, d in self.disagreements().items():
-            confident = ekf[i][2] < 0.5 * bound
-            if d > bound and confident and i not in self.alarms:
+            settled = t - self.joined_s.get(i, -math.inf) >= self.cfg.settle_s
+            if d <= bound or not settled or ekf[i][2] >= 0.5 * bound:
+                self.over_since_s.pop(i, None)
+            else:
+                self.over_since_s.setdefault(i, t)
+            held = t - self.over_since_s.get(i, math.inf) >= self.cfg.alarm_hold_s
+            if held and i not in self.alarms:
                 self.alarms.add(i)
                 self._event(
-                    self.t_s,
+                    t,
                     "disagreement",
                     i,
                     f"ALARM vehicle {i}: EKF and daemons disagree by {d:.2f} m > {bound:.2f} m",
                 )
-            elif d <= bound and i in self.alarms:
+            elif d < 0.8 * bound and i in self.alarms:
                 self.alarms.discard(i)
-                self._event(self.t_s, "agreement", i, f"vehicle {i}: agrees again ({d:.2f} m)")
+                self._event(t, "agreement", i, f"vehicle {i}: agrees again ({d:.2f} m)")
 
     def scale(self) -> dict[str, float | None]:
         """The formation's size as the EKF sees it: ``scale_m`` (RMS distance between vehicles),
