@@ -101,9 +101,11 @@ def test_replay_recovers_scale_and_poses_of_a_moving_team(tmp_path):
     assert out["skipped"]["undecodable_malformed"] == 3
 
 
-def test_replay_needs_a_recording_and_says_live_mode_is_missing(tmp_path):
-    res = CliRunner().invoke(app, ["gcs", "estimate"])
-    assert res.exit_code == 2 and "not implemented" in res.output
+def test_replay_needs_a_recording_and_live_mode_checks_its_options(tmp_path):
+    res = CliRunner().invoke(app, ["gcs", "estimate", "--zenoh", "none"])
+    assert res.exit_code == 2 and "listens on Zenoh" in res.output
+    res = CliRunner().invoke(app, ["gcs", "estimate", "--duration", "-1"])
+    assert res.exit_code == 2 and "--duration" in res.output
     not_mcap = tmp_path / "x.mcap"
     not_mcap.write_bytes(b"nope")
     res = CliRunner().invoke(app, ["gcs", "estimate", "--replay", str(not_mcap)])
