@@ -58,7 +58,7 @@ def _feed(
             r = rot_z(yaw[a])
             loop.add_motion(
                 MotionShare(
-                    sender=i, seq=k, stamp_s=t, v_body=tuple(r.T @ v[a]),
+                    sender=i, seq=k, stamp_s=t, v_body=tuple((r.T @ v[a]).tolist()),
                     yaw_rate_rad_s=float(rate[a]), yaw_rad=float(yaw[a]),
                 )
             )  # fmt: skip
@@ -73,7 +73,7 @@ def _feed(
             loop.add_frame(
                 BearingShare(
                     sender=i, seq=k, stamp_s=t, yaw_rad=float(yaw[a]),
-                    targets=[IDS[b] for b in others], beta_body=[tuple(b) for b in beta],
+                    targets=[IDS[b] for b in others], beta_body=[tuple(b.tolist()) for b in beta],
                 )
             )  # fmt: skip
             off = (daemon_offset or {}).get(i, np.zeros(3))
