@@ -621,13 +621,15 @@ def _estimate_live(
 
     console = Console(width=None if sys.stdout.isatty() else 160)
     err = Console(stderr=True, width=160)
-    with ExitStack() as stack:
-        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
-        est = LiveEstimator(session, fleet, loop, on_event=lambda m: err.print(m, markup=False))
-        est.start()
-        stack.callback(est.close)
-        t_end = None if duration is None else time.monotonic() + duration
-        with _sigterm_event() as stop:
+    est: LiveEstimator | None = None
+    with _sigterm_event() as stop, ExitStack() as stack:
+        try:  # Ctrl-C (or SIGTERM) at any point ends the run with its summary
+            session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
+            est = LiveEstimator(session, fleet, loop, on_event=lambda m: err.print(m, markup=False))
+            est.start()
+            stack.callback(est.close)
+            err.print(f"estimating fleet {fleet!r}: listening on Zenoh", markup=False)
+            t_end = None if duration is None else time.monotonic() + duration
             live = None
             if live_view:
                 from rich.live import Live
@@ -636,16 +638,15 @@ def _estimate_live(
                     Live(render(loop.summary(), fleet), console=console, auto_refresh=False)
                 )
             next_draw = 0.0
-            try:
-                while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
-                    est.pump(0.05)
-                    if live is not None and time.monotonic() >= next_draw:
-                        live.update(render(loop.summary(), fleet), refresh=True)
-                        next_draw = time.monotonic() + 0.25
-            except KeyboardInterrupt:
-                pass
+            while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
+                est.pump(0.05)
+                if live is not None and time.monotonic() >= next_draw:
+                    live.update(render(loop.summary(), fleet), refresh=True)
+                    next_draw = time.monotonic() + 0.25
+        except KeyboardInterrupt:
+            pass
     summary = loop.summary()
-    summary["samples"] = est.received
+    summary["samples"] = est.received if est is not None else 0
     if json:
         typer.echo(jsonlib.dumps(summary))
     elif not live_view:

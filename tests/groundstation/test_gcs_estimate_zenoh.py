@@ -4,6 +4,10 @@ on the daemons' keys reach the loop; bad samples are counted; the table says wha
 
 from __future__ import annotations
 
+import json
+import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -89,3 +93,25 @@ def test_the_table_names_a_disagreeing_vehicle():
     console.print(render(s, "alpha"))
     text = console.export_text()
     assert "DISAGREE" in text and "more than 1.50 m on vehicle 3" in text
+
+
+def test_ctrl_c_stops_the_live_estimator_cleanly_with_its_summary():
+    endpoint = loopback_endpoint(free_port_base(1))
+    hub = open_session(ZenohSettings(listen=[endpoint]))
+    cmd = ["gcs", "estimate", "--zenoh", endpoint, "--json"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "groundstation.cli", *cmd],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        assert b"listening on Zenoh" in proc.stderr.readline()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        hub.close()
+    assert proc.returncode == 1 and b"Traceback" not in err  # 1: the filter never updated
+    s = json.loads(out.decode().strip().splitlines()[-1])
+    assert s["updates"] == 0 and s["vehicles"] == [] and s["samples"] == 0
