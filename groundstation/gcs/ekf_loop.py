@@ -367,8 +367,12 @@ class EkfLoop:
         if self.fixed_ids is None:
             self.last_frame[frame.sender] = frame
             self._admit(frame)
-        if frame.sender not in self.ids:
-            self.count("bearings_from_vehicle_without_odometry")
+        if frame.sender not in self.ids:  # live: odometry heard, no member's bearing to it yet
+            self.count(
+                "bearings_from_vehicle_not_yet_in_filter"
+                if frame.sender in self.latest
+                else "bearings_from_vehicle_without_odometry"
+            )
             return False
         if self.state is None:
             self.count("fewer_than_2_vehicles_with_odometry")

@@ -208,3 +208,16 @@ def test_scale_is_the_formations_size_and_compares_with_the_daemons():
     assert s["scale_m"] == pytest.approx(np.sqrt(np.mean(np.square(d))), rel=0.02)
     assert s["daemon_scale_ratio"] == pytest.approx(1.0, abs=0.02)
     assert 0.0 < s["scale_rel_sigma"] < 0.1
+
+
+def test_from_nothing_to_the_metric_scale_without_a_false_alarm():
+    """Newcomers enter along a member's bearing: the filter converges from no knowledge (a
+    ring prior put them on the wrong side and it settled 15-20 times too large), and the
+    settling time keeps its early overconfidence from raising an alarm."""
+    loop = EkfLoop()
+    _feed(loop, 0.0, 12.0)
+    p, *_ = _truth(loop.t_s)
+    d = [np.linalg.norm(p[a] - p[b]) for a, b in ((0, 1), (0, 2), (1, 2))]
+    assert loop.scale()["scale_m"] == pytest.approx(np.sqrt(np.mean(np.square(d))), rel=0.03)
+    assert max(loop.disagreements().values()) < 0.2
+    assert not loop.alarms and "disagreement" not in loop.event_counts
