@@ -21,10 +21,10 @@ import time
 import numpy as np
 from core_replay import describe, record, time_cases
 
-from onboard.agent_config import AgentConfig
+from onboard.core.config import build_config
 from sim.compiled_runner import run_compiled
 from sim.runner import RunnerConfig, run
-from sim.scenarios import run_scenario
+from sim.scenarios import PAPER_SFM, run_scenario
 
 
 def _ring_team(n: int, seed: int = 0):
@@ -40,7 +40,7 @@ def _ring_team(n: int, seed: int = 0):
     edges = tuple(sorted(e for e in edges if e[0] != e[1]))
     p_hat0 = tuple(tuple(float(x) for x in 0.7 * row) for row in p0)
     cfgs = [
-        AgentConfig(
+        build_config(
             agent_id=i,
             n_agents=n,
             edges=edges,
@@ -48,6 +48,7 @@ def _ring_team(n: int, seed: int = 0):
             p_hat0_ned=p_hat0,
             yaw_hat0_rad=tuple(float(y) for y in yaw0),
             seed=seed,
+            **PAPER_SFM,  # the observer both engines run (the compiled one has no safeguards)
         )
         for i in range(n)
     ]
@@ -70,7 +71,7 @@ def main() -> None:
     yaw0 = rng.uniform(-np.pi, np.pi, n)
     p_hat0 = tuple(tuple(float(x) for x in 0.7 * row) for row in p0)
     cfgs = [
-        AgentConfig(
+        build_config(
             agent_id=i,
             n_agents=n,
             edges=edges,
@@ -80,7 +81,7 @@ def main() -> None:
         )
         for i in range(n)
     ]
-    alone_cfg = AgentConfig(agent_id=0, n_agents=1, edges=(), mode="active")
+    alone_cfg = build_config(agent_id=0, n_agents=1, edges=(), mode="active")
     cases = {
         "busy": (cfgs[0], record(cfgs, p0, yaw0, RunnerConfig(duration_s=2.0, seed=0))),
         "alone": (

@@ -27,7 +27,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the scripted sta
 
 from groundstation.gcs.record import CHUNK_BYTES, Recorder, Source, iter_records
 from messages.codec import encode
-from messages.peer import ConsensusState, MotionShare, SfmEstimate
+from messages.peer import (
+    ConsensusEntry,
+    ConsensusState,
+    MotionShare,
+    SfmEdgeEstimate,
+    SfmEstimate,
+)
 from messages.sim import CameraBearings, Truth
 from tests.groundstation.standin import StandinConfig, scripted_status
 
@@ -50,11 +56,11 @@ def synthetic(n: int, seconds: float) -> list[tuple[str, bytes, float]]:
             if k % 5 == 0:
                 out.append((f"{pre}/status", encode(scripted_status(cfg, i, t, k, "flying")), t))
                 out.append((f"{pre}/peer/sfm", encode(SfmEstimate(sender=i, seq=k, stamp_s=t,
-                            peers=nb, chi_hat_inv_m=[0.1] * len(nb), excitation=[0.5] * len(nb),
-                            e_index=[0.01] * len(nb), e_folds=[3.0] * len(nb))), t))  # fmt: skip
+                            edges=[SfmEdgeEstimate(j, 0.1, 0.5, 0.01, 3.0) for j in nb])),
+                            t))  # fmt: skip
                 out.append((f"{pre}/peer/consensus", encode(ConsensusState(sender=i, seq=k,
-                            stamp_s=t, names=["e", "lambda", "w"], x=[[0.1] * n] * 3,
-                            z=[[0.2] * n] * 3)), t))  # fmt: skip
+                            stamp_s=t, states=[ConsensusEntry(name, [0.1] * n, [0.2] * n)
+                                               for name in ("e", "lambda", "w")])), t))  # fmt: skip
             if k % 5 in (0, 2, 3):  # 30 Hz
                 cam = CameraBearings(sender=i, seq=k, stamp_s=t, targets=nb[:3],
                                      beta_body=[(0.6, 0.8, 0.0)] * len(nb[:3]))  # fmt: skip

@@ -24,7 +24,7 @@ import argparse
 import numpy as np
 from core_replay import Inputs, describe, record, time_cases
 
-from onboard.agent_config import AgentConfig
+from onboard.core.config import AgentConfig, build_config
 from onboard.estimation.distributed_eigen import EigenGains, run_rounds
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
@@ -60,7 +60,7 @@ def _cases(n: int, duration: float) -> dict[str, tuple[AgentConfig, Inputs]]:
     out = {}
     for mode in ("rigidity-tracking", "hold"):
         configs = [
-            AgentConfig(
+            build_config(
                 agent_id=i,
                 n_agents=n,
                 edges=edges,

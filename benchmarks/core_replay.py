@@ -20,7 +20,8 @@ import numpy as np
 
 from messages.agent import OwnMeasurements
 from messages.codec import Payload
-from onboard.agent import AgentConfig, AgentCore
+from onboard.core.agent import AgentCore
+from onboard.core.config import AgentConfig
 from onboard.geometry import FloatArray
 from sim.runner import RunnerConfig, run
 

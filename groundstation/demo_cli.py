@@ -161,7 +161,8 @@ def demo(
         Path | None,
         typer.Option(
             help="Directory for logs, data, plots and the recording "
-            "(default: ./bearingflock-demo-<time>)."
+            "(default: ./bearingflock-demo-<time>; --headless: only summary.json, and only "
+            "with --out)."
         ),
     ] = None,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the formation and of all noise.")] = 0,
@@ -292,14 +293,15 @@ def demo(
             "error: --secure flies the simulated autopilots (not --headless or SITL)", err=True
         )
         raise typer.Exit(2)
-    from onboard.agent_config import Mode
+    from onboard.core.config import Mode
 
     modes = get_args(Mode)
     if mode not in modes:
         typer.echo(f"error: --mode must be one of {', '.join(modes)}", err=True)
         raise typer.Exit(2)
-    if headless:
-        _headless(vehicles, seed, duration, mode, loss, json, rigidity)
+    if headless:  # writes summary.json into --out when given (it used to write nothing)
+        out_dir = _writable_out(out) if out is not None else None
+        _headless(vehicles, seed, duration, mode, loss, json, rigidity, out_dir)
         return
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     auto = default_speedup(vehicles, cores or 1)
@@ -318,14 +320,7 @@ def demo(
     if not render_rate > 0.0:
         typer.echo("error: --render-rate must be > 0", err=True)
         raise typer.Exit(2)
-    out_dir = out or default_out_dir()
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / ".write-test").touch()
-        (out_dir / ".write-test").unlink()
-    except OSError as exc:
-        typer.echo(f"error: --out {out_dir}: cannot write there ({exc.strerror})", err=True)
-        raise typer.Exit(2) from None
+    out_dir = _writable_out(out or default_out_dir())
     camera_files: list[Path] = []
     markers_file = None
     if bearings == "camera":
@@ -379,6 +374,18 @@ def demo(
     _finish(summary, json, console, out_dir)
 
 
+def _writable_out(out_dir: Path) -> Path:
+    """``out_dir``, created; exit 2 with one line if it cannot be written."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / ".write-test").touch()
+        (out_dir / ".write-test").unlink()
+    except OSError as exc:
+        typer.echo(f"error: --out {out_dir}: cannot write there ({exc.strerror})", err=True)
+        raise typer.Exit(2) from None
+    return out_dir
+
+
 def default_out_dir(now: float | None = None) -> Path:
     """``./bearingflock-demo-<local time>``: where a demo without ``--out`` writes its files."""
     return Path(f"bearingflock-demo-{time.strftime('%Y%m%d-%H%M%S', time.localtime(now))}")
@@ -410,7 +417,14 @@ def _finish(summary: dict, json: bool, console: Console, out_dir: Path | None) -
 
 
 def _headless(
-    vehicles: int, seed: int, duration: float, mode: str, loss: float, json: bool, rigidity: bool
+    vehicles: int,
+    seed: int,
+    duration: float,
+    mode: str,
+    loss: float,
+    json: bool,
+    rigidity: bool,
+    out_dir: Path | None = None,
 ):
     from rich.progress import Progress
 
@@ -424,7 +438,9 @@ def _headless(
             progress=lambda f: bar.update(task, completed=f),
         )  # fmt: skip
     summary["headless"] = True
-    _finish(summary, json, Console(), None)
+    if out_dir is not None:
+        summary["out"] = str(out_dir)
+    _finish(summary, json, Console(), out_dir)
 
 
 class _Null:

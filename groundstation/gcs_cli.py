@@ -15,6 +15,7 @@ inside the commands so that ``bearingflock --help`` stays instant.
 from __future__ import annotations
 
 import json as jsonlib
+import math
 import signal
 import sys
 import threading
@@ -163,6 +164,8 @@ def _open_zenoh(
 
     values = connect if connect is not None else [DEFAULT_ZENOH]
     if _off(values):
+        if listen:  # never drop an endpoint silently (issue 23)
+            raise _fail(f"--zenoh-listen {' '.join(listen)}: Zenoh is off (--zenoh none)")
         return None
     settings = ZenohSettings(connect=values, listen=listen or [])
     if keys is not None:  # mutual TLS with the fleet CA, as the ground station
@@ -440,6 +443,8 @@ def record(
     from groundstation.gcs.record import Recorder
 
     _check_fleet(fleet)
+    if duration is not None and not (math.isfinite(duration) and duration > 0.0):
+        raise _fail(f"--duration must be a finite number of seconds > 0, got {duration}")
     with ExitStack() as stack:
         stop = stack.enter_context(_sigterm_event())
         try:
@@ -525,8 +530,12 @@ def plot(
     series = load_series(src, fleet, recording.records)
     if not series.vehicles:
         raise _fail(f"{src}: no vehicle data for fleet {series.fleet!r}", EXIT_FAILED)
-    out.mkdir(parents=True, exist_ok=True)
-    for path in plot_all(series, out):
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        paths = plot_all(series, out)
+    except OSError as exc:
+        raise _fail(f"cannot write the plots to {out}: {exc.strerror or exc}") from None
+    for path in paths:
         typer.echo(str(path))
 
 

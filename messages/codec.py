@@ -26,11 +26,14 @@ import numpy.typing as npt
 
 from messages.limits import ARRAY_ABS_MAX, AgentId, Seq, Stamp
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 """2: :class:`messages.rigidity.RigidityEigenShare` carries its vectors as :data:`F64Array`.
 3: one unit-suffix dialect (``_m_s``, ``_rad_s``): :class:`messages.sim.Truth` has
 ``yaw_rate_rad_s`` (was ``yaw_rate_radps``); every payload is bounded by
-:mod:`messages.limits`."""
+:mod:`messages.limits`.
+4: payloads that carried parallel lists carry one list of small entries
+(:class:`messages.peer.TargetBearing`, ``SfmEdgeEstimate``, ``EdgeExcitation``,
+``ConsensusEntry``, :class:`messages.rigidity.GradientBlock`), checked whole on decode."""
 MAX_PAYLOAD_BYTES = 1 << 20
 """Larger payloads are rejected before decoding (1 MiB; images are the largest legitimate ones)."""
 

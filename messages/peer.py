@@ -19,10 +19,10 @@ import msgspec
 from messages.codec import Payload
 from messages.limits import (
     LIST_MAX,
+    AgentId,
     Angle,
     Bearing3,
     Dimensionless,
-    IdList,
     InvDistance,
     Name,
     PositionVec3,
@@ -34,12 +34,57 @@ from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 
 Vec3 = tuple[float, float, float]
 # bounded lists of bounded values (messages.limits): a huge finite number is out_of_range
-_Bearings = Annotated[list[Bearing3], msgspec.Meta(max_length=LIST_MAX)]
-_InvDistances = Annotated[list[InvDistance], msgspec.Meta(max_length=LIST_MAX)]
 _Values = Annotated[list[Dimensionless], msgspec.Meta(max_length=LIST_MAX)]
-_Stamps = Annotated[list[Stamp], msgspec.Meta(max_length=LIST_MAX)]
-_Names = Annotated[list[Name], msgspec.Meta(max_length=LIST_MAX)]
-_Rows = Annotated[list[_Values], msgspec.Meta(max_length=LIST_MAX)]
+
+
+class Entry(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """One entry of a payload's list (encoded as a short array; decoding checks its arity and
+    every field's bounds, so a receiver never meets a half entry)."""
+
+
+class TargetBearing(Entry):
+    """One bearing of a camera frame: body-frame unit vector toward agent ``target``."""
+
+    target: AgentId
+    beta_body: Bearing3
+
+
+class SfmEdgeEstimate(Entry):
+    """The inverse-depth observer (eq. 8) of reciprocal edge ``(sender, peer)``: ``chihat``,
+    ``lambda_ij = u_ij^T P_ij u_ij``, ``E_ij`` of eq. 10 (window average of ``|xi|^2``) and
+    ``int sqrt(alpha lambda_ij) dt`` (how far the observer has converged)."""
+
+    peer: AgentId
+    chi_hat_inv_m: InvDistance
+    excitation: Dimensionless
+    e_index: Dimensionless
+    e_folds: Dimensionless
+
+
+class EdgeExcitation(Entry):
+    """The freshest excitation ``lambda_k`` of reciprocal edge ``k = (first, second)``, measured
+    at ``stamp_s``."""
+
+    first: AgentId
+    second: AgentId
+    excitation: Dimensionless
+    stamp_s: Stamp
+
+
+class ConsensusEntry(Entry):
+    """The state ``(x, z)`` of one PI average-consensus estimator: ``x`` estimates the network
+    average of the local inputs of quantity ``name``, ``z`` is its integral state (empty for
+    plain neighbour averaging, e.g. of ``w_l``)."""
+
+    name: Name
+    x: _Values
+    z: _Values
+
+
+_TargetBearings = Annotated[list[TargetBearing], msgspec.Meta(max_length=LIST_MAX)]
+_SfmEdges = Annotated[list[SfmEdgeEstimate], msgspec.Meta(max_length=LIST_MAX)]
+_EdgeExcitations = Annotated[list[EdgeExcitation], msgspec.Meta(max_length=LIST_MAX)]
+_ConsensusEntries = Annotated[list[ConsensusEntry], msgspec.Meta(max_length=LIST_MAX)]
 
 
 class MotionShare(Payload, tag="peer.motion"):
@@ -58,34 +103,22 @@ class BearingShare(Payload, tag="peer.bearings"):
     and for the in-edge terms of the localization filter (eq. 6) and of the formation law."""
 
     yaw_rad: Angle
-    targets: IdList
-    beta_body: _Bearings
+    bearings: _TargetBearings
 
 
 class SfmEstimate(Payload, tag="peer.sfm"):
     """Results of the inverse-depth observers (eq. 8) the sender runs, one entry per reciprocal
-    edge ``(sender, peers[m])`` (the lower id runs the edge and shares it with the other end).
-    ``e_index`` is ``E_ij`` of eq. 10 (window average of ``|xi|^2``), ``excitation`` is
-    ``lambda_ij = u_ij^T P_ij u_ij``; ``e_folds`` is ``int sqrt(alpha lambda_ij) dt`` (how far the
-    observer has converged, empty from senders that predate it)."""
+    edge ``(sender, peer)`` (the lower id runs the edge and shares it with the other end)."""
 
-    peers: IdList
-    chi_hat_inv_m: _InvDistances
-    excitation: _Values
-    e_index: _Values
-    e_folds: _Values = msgspec.field(default_factory=list)
+    edges: _SfmEdges
 
 
 class ExcitationTable(Payload, tag="peer.excitation"):
-    """The freshest excitation ``lambda_k`` the sender knows for each reciprocal edge
-    ``k = (first[m], second[m])``, measured at ``stamps_s[m]``; receivers keep the newest
-    value per edge and relay it, so every agent knows every ``lambda_k`` within a few hops
-    and computes ``lambdabar`` (eq. 11) exactly."""
+    """The freshest excitation the sender knows for each reciprocal edge; receivers keep the
+    newest value per edge and relay it, so every agent knows every ``lambda_k`` within a few
+    hops and computes ``lambdabar`` (eq. 11) exactly."""
 
-    first: IdList
-    second: IdList
-    excitation: _Values
-    stamps_s: _Stamps
+    entries: _EdgeExcitations
 
 
 class LocalizationState(Payload, tag="peer.localization"):
@@ -96,14 +129,10 @@ class LocalizationState(Payload, tag="peer.localization"):
 
 
 class ConsensusState(Payload, tag="peer.consensus"):
-    """States ``(x, z)`` of the sender's PI average-consensus estimators, one entry per named
-    quantity (Freeman, Yang, Lynch 2006; ACE blocks of paper 000 fig. 1). ``x[m]`` estimates the
-    network average of the local inputs of quantity ``names[m]`` and ``z[m]`` is its integral
-    state (empty for plain neighbour averaging, e.g. of ``w_l``)."""
+    """States of the sender's PI average-consensus estimators, one entry per named quantity
+    (Freeman, Yang, Lynch 2006; ACE blocks of paper 000 fig. 1)."""
 
-    names: _Names
-    x: _Rows
-    z: _Rows
+    states: _ConsensusEntries
 
 
 PeerPayload = (

@@ -12,6 +12,7 @@ liveliness tokens within about a second, which is what lets agents drop a dead p
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +34,52 @@ class ZenohSettings:
     lease_ms: int = LEASE_MS
     config_file: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+class TransportError(ValueError):
+    """A Zenoh endpoint, configuration file or session that cannot work; the message is one
+    line naming it (callers print it and exit 2, never a traceback)."""
+
+
+_ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^?#]+)(?:[?#].*)?$")
+_IP_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
+_PROTOCOLS = _IP_PROTOCOLS | {"unixsock-stream", "unixpipe", "serial", "vsock"}
+
+
+def check_endpoint(endpoint: str) -> str:
+    """``endpoint`` if it is a Zenoh endpoint ``<protocol>/<address>[?meta][#config]`` with a
+    known protocol and, for IP protocols, ``HOST:PORT`` with a port in 0..65535; else
+    :class:`TransportError`."""
+    m = _ENDPOINT.match(endpoint)
+    if m is None or m["proto"] not in _PROTOCOLS:
+        raise TransportError(
+            f"zenoh endpoint {endpoint!r}: must be <protocol>/<address> with protocol one of "
+            f"{', '.join(sorted(_PROTOCOLS))} (e.g. tcp/127.0.0.1:7447)"
+        )
+    if m["proto"] in _IP_PROTOCOLS:
+        host, sep, port = m["addr"].rpartition(":")
+        if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise TransportError(
+                f"zenoh endpoint {endpoint!r}: the address must be HOST:PORT with a port in "
+                "0..65535"
+            )
+    return endpoint
+
+
+def check_settings(settings: ZenohSettings) -> None:
+    """Every endpoint valid and the configuration file readable (:class:`TransportError`)."""
+    for e in [*settings.listen, *settings.connect]:
+        check_endpoint(e)
+    if settings.mode not in ("peer", "client", "router"):
+        raise TransportError(f"zenoh mode {settings.mode!r}: must be peer, client or router")
+    if settings.config_file and not Path(settings.config_file).is_file():
+        raise TransportError(f"zenoh config_file {settings.config_file}: no such file")
+
+
+def _zenoh_message(exc: BaseException) -> str:
+    """Zenoh's error text without its source location (`` at /root/.cargo/...``)."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return re.sub(r" at /\S+\.rs:\d+\.?", "", text).strip()
 
 
 def loopback_endpoint(port: int) -> str:
@@ -103,6 +150,14 @@ def zenoh_config(settings: ZenohSettings) -> Any:
     """Build a ``zenoh.Config`` (Zenoh is imported here, not at module import)."""
     import zenoh
 
+    check_settings(settings)
+    try:
+        return _build_config(zenoh, settings)
+    except zenoh.ZError as exc:
+        raise TransportError(f"zenoh configuration: {_zenoh_message(exc)}") from None
+
+
+def _build_config(zenoh: Any, settings: ZenohSettings) -> Any:
     if settings.config_file:  # the file is the whole configuration (TLS, routers, ...)
         return zenoh.Config.from_file(str(Path(settings.config_file)))
     config = zenoh.Config()
@@ -120,10 +175,15 @@ def zenoh_config(settings: ZenohSettings) -> Any:
 
 
 def open_session(settings: ZenohSettings) -> Any:
-    """Open a Zenoh session with :func:`zenoh_config`."""
+    """Open a Zenoh session with :func:`zenoh_config`; :class:`TransportError` (one line) for a
+    bad endpoint or file, or a session Zenoh cannot open (e.g. a listen port in use)."""
     import zenoh
 
-    return zenoh.open(zenoh_config(settings))
+    config = zenoh_config(settings)
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        raise TransportError(f"zenoh: cannot open the session: {_zenoh_message(exc)}") from None
 
 
 def publisher_put(session: Any) -> Callable[[str, bytes], None]:

@@ -15,6 +15,7 @@ callable (Zenoh in the CLI, a list in tests).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -65,6 +66,32 @@ def visible_bearings(
     return edges, beta, d
 
 
+Vec3 = tuple[float, float, float]
+
+
+def noisy_bearing(beta: Vec3, noise: Vec3, sigma_rad: float) -> Vec3:
+    """A unit bearing tilted by angular noise: ``sigma noise`` (``noise`` standard normal per
+    axis) projected onto the bearing's tangent plane, added, renormalized. The one camera-noise
+    model of the project (the simulator's camera, both engines of the headless runner)."""
+    n0, n1, n2 = noise[0] * sigma_rad, noise[1] * sigma_rad, noise[2] * sigma_rad
+    nb = n0 * beta[0] + n1 * beta[1] + n2 * beta[2]
+    o0 = beta[0] + (n0 - nb * beta[0])
+    o1 = beta[1] + (n1 - nb * beta[1])
+    o2 = beta[2] + (n2 - nb * beta[2])
+    norm = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+    return (o0 / norm, o1 / norm, o2 / norm)
+
+
+def noisy_bearings(beta: FloatArray, noise: FloatArray, sigma_rad: float) -> FloatArray:
+    """:func:`noisy_bearing` of every row of ``beta`` ``(E, 3)`` with ``noise`` ``(E, 3)``."""
+    b, z = beta.tolist(), noise.tolist()
+    out = [
+        noisy_bearing((r[0], r[1], r[2]), (q[0], q[1], q[2]), sigma_rad)
+        for r, q in zip(b, z, strict=True)
+    ]
+    return np.asarray(out, dtype=float).reshape(beta.shape)
+
+
 def perturb_bearings(
     beta: FloatArray, noise_std_rad: float, dropout: float, rng: np.random.Generator
 ) -> tuple[np.ndarray, FloatArray]:
@@ -75,10 +102,7 @@ def perturb_bearings(
     keep = rng.random(e) >= dropout if dropout > 0.0 else np.ones(e, dtype=bool)
     if noise_std_rad == 0.0 or e == 0:
         return keep, beta.copy()
-    w = rng.normal(0.0, noise_std_rad, size=(e, 3))
-    w -= np.sum(w * beta, axis=1, keepdims=True) * beta  # tangent part only
-    noisy = beta + w
-    return keep, noisy / np.linalg.norm(noisy, axis=1, keepdims=True)
+    return keep, noisy_bearings(beta, rng.standard_normal((e, 3)), noise_std_rad)
 
 
 class CameraPublisher:

@@ -85,7 +85,10 @@ def sim(
     ] = 14550,
     bind_base: Annotated[
         int | None,
-        typer.Option(help="UDP: vehicle i binds port bind-base + i (default: port-base + 40)."),
+        typer.Option(
+            help="UDP: vehicle i binds port bind-base + i (default: port-base + 40; 0: the "
+            "kernel picks free ports, printed at start)."
+        ),
     ] = None,
     tcp_base: Annotated[
         int, typer.Option(help="TCP: vehicle i listens on tcp-base + 10 i.")
@@ -163,6 +166,7 @@ def sim(
     """Run a multi-vehicle kinematic MAVLink simulator (PX4 or ArduPilot flavour), or real
     ArduCopter SITL with the same camera, truth and clock (``--autopilot ardupilot-sitl``)."""
     # heavy imports here, so that ``bearingflock --help`` stays instant
+    from messages.fatal import FatalThreads
     from sim.autopilot.signing import load_key
     from sim.camera import CameraConfig, CameraPublisher
     from sim.clock import ClockPublisher
@@ -296,7 +300,12 @@ def sim(
             except (ValueError, KeyStoreError) as exc:
                 typer.echo(f"error: {exc}", err=True)
                 raise typer.Exit(2) from None
-        session = open_session(zsettings)
+        try:
+            session = open_session(zsettings)
+        except ValueError as exc:  # TransportError: a port in use, a bad endpoint
+            server.close()
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
         put = publisher_put(session)
         server.hooks.append(CameraPublisher(camera, fleet, put, ids=ids))
         server.hooks.append(ClockPublisher(fleet, put, server.clock, config.dt_s))
@@ -317,6 +326,8 @@ def sim(
     # Python then never raises KeyboardInterrupt, so Ctrl-C or `kill -INT` did nothing.
     # Installed before the ready line: a signal sent as soon as it appears must stop us cleanly.
     stop = threading.Event()
+    # any other thread that dies (a renderer) stops the simulator too (messages/fatal.py)
+    fatal = FatalThreads(on_fatal=lambda _text: stop.set()).install()
     stop_signals = (signal.SIGINT, signal.SIGTERM)
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in stop_signals}
     for line in server.endpoints():
@@ -337,7 +348,7 @@ def sim(
 
     server.start()
     try:
-        while not stop.wait(0.5):
+        while not stop.wait(0.5) and server.failure is None:
             if not quiet:
                 end = "\r" if sys.stdout.isatty() else "\n"
                 extra = f"  {images.status()}" if images is not None else ""
@@ -354,6 +365,13 @@ def sim(
             session.close()
         counters = " ".join(f"{k}={v}" for k, v in server.counters().items() if v)
         typer.echo(f"\nstopped at t={server.world.t_s:.2f}s; {counters}")
+        fatal.uninstall()
+    if server.failure is not None:  # never a live-looking process with a dead loop (issue 23)
+        typer.echo(f"error: {server.failure_text()}", err=True)
+        raise typer.Exit(1)
+    if fatal.message:
+        typer.echo(f"error: {fatal.message}", err=True)
+        raise typer.Exit(1)
 
 
 def _render_rig(

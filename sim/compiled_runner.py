@@ -2,15 +2,16 @@
 
 :func:`run_compiled` takes what :func:`sim.runner.run` takes and returns the same
 :class:`sim.runner.Recording`, from :func:`sim.team_kernel.simulate` instead of N Python
-:class:`onboard.agent.AgentCore` objects. Use it for studies (many seeds, long runs); the cores
+:class:`onboard.core.agent.AgentCore` objects. Use it for studies (many seeds, long runs); the cores
 remain the reference, and what the daemons fly. The two engines agree on the same seed (tests
 compare trajectories, convergence times and estimates), with these differences:
 
-* message loss draws its own random numbers (same probability, other realization), so with
-  loss the runs differ; without it they agree to round-off;
-* supported: modes ``active``, ``random``, ``formation``, ``formation-active``, bearing and
-  odometry noise, loss, latency and the autopilot lags. Not: camera latency, field of view,
-  ranges, targets, the rigidity layer (:class:`ValueError` names the option).
+* both lose the same message copies (:func:`sim.draws.lost` of the step sent, the sender, the
+  receiver and the payload kind) and add the same noise (the runner's streams, pre-drawn in
+  its order), so they agree to round-off with and without loss;
+* supported: modes ``active``, ``random``, ``formation``, ``formation-active`` and ``hold``,
+  bearing and odometry noise, loss, latency and the autopilot lags. Not: camera latency,
+  field of view, ranges, targets, the rigidity layer (:class:`ValueError` names the option).
 
 The first call compiles the kernel (about 30 s on a small machine); numba caches it next
 to the sources (``__pycache__``), so later processes load it in about a second.
@@ -22,12 +23,12 @@ import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
-import msgspec
 import numpy as np
 from numpy.typing import ArrayLike
 
-from onboard.agent_config import AgentConfig
 from onboard.control.random_motion import _BLOCK
+from onboard.core.bearings import MAX_ODOMETRY_GAP_S
+from onboard.core.config import AgentConfig, replace_fields
 from onboard.estimation.localization import MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S
 from onboard.graph import normalize_edges, reciprocal_pairs
 from sim import team_kernel
@@ -69,33 +70,35 @@ class Gains(NamedTuple):
 
     @classmethod
     def of(cls, c: AgentConfig) -> Gains:
+        s, a, f, lim = c.scale, c.active, c.formation, c.safety
         return cls(
-            c.alpha, c.h_other, c.h_floor, c.chi_min_inv_m, c.k_loc_bearing, c.k_loc_distance,
-            MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S, c.consensus_gamma, c.consensus_k_p,
-            c.consensus_k_i, c.k_w_l_coupling, c.w_l_max_rad_s, c.p_norm, c.k_nu, c.nu_star,
-            c.k_lambda, c.k_w, c.gamma, c.k_lambda0, c.e_low, c.e_high, c.converged_e_folds,
-            c.k_formation, c.k_yaw, c.v_max_m_s, c.yaw_rate_max_rad_s, c.peer_timeout_s,
-            c.random_tau_s,
+            s.alpha, s.h_other, s.h_floor, s.chi_min_inv_m, s.k_loc_bearing, s.k_loc_distance,
+            MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S, s.consensus_gamma, s.consensus_k_p,
+            s.consensus_k_i, a.k_w_l_coupling, a.w_l_max_rad_s, s.p_norm, a.k_nu, a.nu_star,
+            a.k_lambda, a.k_w, a.gamma, a.k_lambda0, s.e_low, s.e_high, s.converged_e_folds,
+            f.k_formation, f.k_yaw, lim.v_max_m_s, lim.yaw_rate_max_rad_s, lim.peer_timeout_s,
+            a.random_tau_s,
         )  # fmt: skip
 
 
 def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
-    team = msgspec.structs.replace(configs[0], agent_id=0)
+    team = replace_fields(configs[0], agent_id=0)
     for i, c in enumerate(configs):
-        if c.agent_id != i:
-            raise ValueError(f"configs[{i}] has agent_id {c.agent_id}: give them in id order")
+        if c.graph.agent_id != i:
+            raise ValueError(f"configs[{i}] has agent_id {c.graph.agent_id}: give them in id order")
         if c.mode not in team_kernel.MODE_CODES:
             raise ValueError(f"the compiled engine has no mode {c.mode!r}; use engine 'cores'")
-        if c.rigidity_maintenance:
+        if c.rigidity.rigidity_maintenance:
             raise ValueError("the compiled engine has no rigidity layer; use engine 'cores'")
-        safeguards = (c.sfm_bias_speed_m_s, c.sfm_folds_forget_s, c.sfm_wander_max)
+        s = c.scale
+        safeguards = (s.sfm_bias_speed_m_s, s.sfm_folds_forget_s, s.sfm_wander_max)
         if any(x != 0.0 for x in safeguards):
             raise ValueError(
                 "the compiled engine runs paper 000's SfM observer: set sfm_bias_speed_m_s, "
                 "sfm_folds_forget_s and sfm_wander_max to 0 (sim.scenarios.PAPER_SFM) or use "
                 "engine 'cores'"
             )
-        if msgspec.structs.replace(c, agent_id=0) != team:
+        if replace_fields(c, agent_id=0) != team:
             raise ValueError("the compiled engine needs one configuration for the whole team")
     unsupported = {
         "camera_latency_s": runner.camera_latency_s != 0.0,
@@ -111,11 +114,11 @@ def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
 
 def _random_motion_noise(cfg: AgentConfig, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Initial directions and the noise rows :class:`RandomMotion` would draw, in its order."""
-    n = cfg.n_agents
+    n = cfg.graph.n_agents
     z0 = np.zeros((n, 3))
     noise = np.zeros((n, max(n_steps, 1), 3))
     for me in range(n):
-        rng = np.random.default_rng(cfg.seed * 1000 + me)
+        rng = np.random.default_rng(cfg.graph.seed * 1000 + me)
         z0[me] = rng.standard_normal(3)
         rows = [rng.standard_normal((_BLOCK, 3))[::-1] for _ in range(-(-n_steps // _BLOCK))]
         if rows:
@@ -137,7 +140,7 @@ def run_compiled(
     n = len(configs)
     p = np.array(p0_ned, dtype=float).reshape(n, 3)
     yaw = np.array(yaw0_rad, dtype=float).reshape(n)
-    edges = normalize_edges(cfg.edges)
+    edges = normalize_edges(cfg.graph.edges)
     pairs = reciprocal_pairs(edges)
     adj = np.zeros((n, n), dtype=bool)
     adj[edges[:, 0], edges[:, 1]] = True
@@ -162,15 +165,15 @@ def run_compiled(
             if noisy_v:
                 vel_noise[k] = rng.standard_normal((n, 4))
 
-    p_hat = np.array(cfg.p_hat0_ned or [(0.0, 0.0, 0.0)] * n, dtype=float)
-    yaw_hat = np.array(cfg.yaw_hat0_rad or [0.0] * n, dtype=float)
+    p_hat = np.array(cfg.graph.p_hat0_ned or [(0.0, 0.0, 0.0)] * n, dtype=float)
+    yaw_hat = np.array(cfg.graph.yaw_hat0_rad or [0.0] * n, dtype=float)
     d0 = np.linalg.norm(p_hat[pairs[:, 1]] - p_hat[pairs[:, 0]], axis=1)
-    chi = 1.0 / np.maximum(d0 if cfg.p_hat0_ned else np.ones(len(pairs)), 1e-3)
-    speed = math.sqrt(2.0 * cfg.nu_star)
+    chi = 1.0 / np.maximum(d0 if cfg.graph.p_hat0_ned else np.ones(len(pairs)), 1e-3)
+    speed = math.sqrt(2.0 * cfg.active.nu_star)
     u_cmd = np.zeros((n, 3))
     if cfg.mode == "active":
         for me in range(n):
-            d = np.random.default_rng(cfg.seed * 1000 + me + 500).standard_normal(3)
+            d = np.random.default_rng(cfg.graph.seed * 1000 + me + 500).standard_normal(3)
             u_cmd[me] = speed * d / np.linalg.norm(d)
     rand_z, rand_noise = (
         _random_motion_noise(cfg, n_steps)
@@ -179,60 +182,47 @@ def run_compiled(
     )
     des = np.zeros((n, n, 3))
     has_des = np.zeros((n, n), dtype=bool)
-    for i, j, b in cfg.desired_beta_body:
+    for i, j, b in cfg.formation.desired_beta_body:
         des[i, j], has_des[i, j] = b, True
-    des_yaw = np.array(cfg.desired_yaw_rad or [0.0] * n, dtype=float)
+    des_yaw = np.array(cfg.formation.desired_yaw_rad or [0.0] * n, dtype=float)
 
     rec = Recording.allocate(edges, pairs, n, n_steps // runner.record_every + 1)
-    lag_v = min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0
-    lag_w = min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0
-    team_kernel.simulate(
-        Gains.of(cfg),
-        team_kernel.MODE_CODES[cfg.mode],
-        n_steps,
-        dt,
-        frame_every,
-        delay,
-        runner.record_every,
-        cfg.excitation_relay_every,
-        cfg.e_window_s,
-        adj,
-        pairs.astype(np.int64),
-        des,
-        has_des,
-        des_yaw,
-        bool(cfg.desired_yaw_rad),
-        p,
-        yaw,
-        offsets,
-        p_hat,
-        yaw_hat,
-        chi,
-        u_cmd,
-        rand_z,
-        rand_noise,
-        speed,
-        bearing_noise,
-        runner.bearing_noise_rad,
-        vel_noise,
-        runner.velocity_noise_m_s,
-        runner.yaw_rate_noise_rad_s,
-        lag_v,
-        lag_w,
-        runner.loss,
-        np.random.default_rng([runner.seed, 11]),
-        rec.t_s,
-        rec.p_ned,
-        rec.yaw_rad,
-        rec.v_ned,
-        rec.p_hat_ned,
-        rec.yaw_hat_rad,
-        rec.chi_hat,
-        rec.lambda_bar_est,
-        rec.e_index_est,
-        rec.k_e,
-        rec.w_l,
+    team = team_kernel.Team(
+        mode=team_kernel.MODE_CODES[cfg.mode],
+        n_steps=n_steps,
+        dt=dt,
+        frame_every=frame_every,
+        delay=delay,
+        record_every=runner.record_every,
+        relay_every=cfg.scale.excitation_relay_every,
+        max_odometry_gap_s=MAX_ODOMETRY_GAP_S,
+        window_s=cfg.scale.e_window_s,
+        adj=adj,
+        pair_ends=pairs.astype(np.int64),
+        des=des,
+        has_des=has_des,
+        des_yaw=des_yaw,
+        use_des_yaw=bool(cfg.formation.desired_yaw_rad),
+        speed=speed,
+        seed=int(runner.seed),
+        loss=float(runner.loss),
+        lag_v=min(1.0, dt / runner.tau_v_s) if runner.tau_v_s > 0.0 else 0.0,
+        lag_w=min(1.0, dt / runner.tau_yaw_s) if runner.tau_yaw_s > 0.0 else 0.0,
     )
+    noise = team_kernel.Noise(
+        bearing=bearing_noise,
+        sigma_bearing_rad=float(runner.bearing_noise_rad),
+        odometry=vel_noise,
+        sigma_v_m_s=float(runner.velocity_noise_m_s),
+        sigma_w_rad_s=float(runner.yaw_rate_noise_rad_s),
+        random_motion=rand_noise,
+    )
+    state = team_kernel.State(p, yaw, offsets, p_hat, yaw_hat, chi, u_cmd, rand_z)
+    trace = team_kernel.Trace(
+        rec.t_s, rec.p_ned, rec.yaw_rad, rec.v_ned, rec.p_hat_ned, rec.yaw_hat_rad,
+        rec.chi_hat, rec.lambda_bar_est, rec.e_index_est, rec.k_e, rec.w_l,
+    )  # fmt: skip
+    team_kernel.simulate(Gains.of(cfg), team, noise, state, trace)
     if progress is not None:
         progress(1.0)
     return rec

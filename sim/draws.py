@@ -27,6 +27,17 @@ BEARING_NOISE = 2
 ODOMETRY_NOISE = 3
 """Stream of odometry noise: ``(step, agent, component)`` (``v_body`` x, y, z, yaw rate)."""
 
+# the payload kinds of the loss stream (one word per peer payload type, messages.peer and
+# messages.rigidity; sim.runner.PAYLOAD_KINDS maps the types, the compiled engines use these)
+KIND_MOTION = 0
+KIND_LOCALIZATION = 1
+KIND_CONSENSUS = 2
+KIND_EXCITATION = 3
+KIND_SFM = 4
+KIND_BEARING = 5
+KIND_ANGLE_LOCALIZATION = 6
+KIND_RIGIDITY_EIGEN = 7
+
 
 def fmix32(h: int) -> int:
     """MurmurHash3's finalizer: a bijection of 32-bit words with full avalanche."""

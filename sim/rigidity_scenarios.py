@@ -47,7 +47,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from onboard.agent import AgentConfig, AgentCore
+from onboard.core.agent import AgentCore
+from onboard.core.config import AgentConfig, build_config
 from onboard.geometry import FloatArray, camera_axis_ned
 from onboard.graph import angle_set, complete_graph, sensing_graph
 from onboard.rigidity.angle import (
@@ -180,8 +181,8 @@ def agent_configs(
     for i in range(n):
         track = (i if i < 3 else -1) if sc.kind == "tracking" else 0
         configs.append(
-            AgentConfig(agent_id=i, n_agents=n, edges=edges, track_target=track, **options)
-        )  # type: ignore[arg-type]
+            build_config(agent_id=i, n_agents=n, edges=edges, track_target=track, **options)
+        )
     return configs, p0, yaw0
 
 
@@ -381,7 +382,7 @@ def run_rigidity_scenario(
             yaw_hat[r, i] = layer.yaw_hat
 
     rec = run(configs, p0, yaw0, rc, progress, on_record=on_record)  # type: ignore[arg-type]
-    cfg = configs[0]
+    cfg = configs[0].rigidity
     return RigidityRecording(
         rec=rec,
         name=name,
@@ -390,7 +391,7 @@ def run_rigidity_scenario(
         lambda_hat=lam,
         p_hat_ned=p_hat,
         yaw_hat_rad=yaw_hat,
-        track_target=[c.track_target for c in configs],
+        track_target=[c.rigidity.track_target for c in configs],
         model=SensingModel(cfg.fov_deg, cfg.range_m),
         lambda_min=cfg.lambda_min,
         lambda_safe=cfg.lambda_safe,

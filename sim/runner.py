@@ -18,7 +18,6 @@ randomness comes from the seed: the same seed gives the same run.
 from __future__ import annotations
 
 import math
-import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -32,10 +31,22 @@ from messages.agent import (
     TargetMeasurement,
 )
 from messages.codec import Payload
+from messages.peer import (
+    BearingShare,
+    ConsensusState,
+    ExcitationTable,
+    LocalizationState,
+    MotionShare,
+    SfmEstimate,
+)
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
-from onboard.agent import AgentConfig, AgentCore
+from onboard.core.agent import AgentCore
+from onboard.core.config import AgentConfig
 from onboard.geometry import FloatArray, IntArray, bearings_body, rot_z
 from onboard.graph import edge_index, normalize_edges, reciprocal_pairs, sensing_graph
+from sim import draws
+from sim.camera import noisy_bearings
+from sim.world import kinematic_step
 
 
 @dataclass(frozen=True)
@@ -197,13 +208,22 @@ def scale_ratio(p_est: ArrayLike, p_true: ArrayLike) -> float:
 def _noisy_unit(b: FloatArray, sigma: float, rng: np.random.Generator) -> FloatArray:
     if sigma <= 0.0:
         return b
-    n = rng.standard_normal(b.shape) * sigma
-    n -= np.sum(n * b, axis=1, keepdims=True) * b  # tangent plane
-    out = b + n
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
+    return noisy_bearings(b, rng.standard_normal(b.shape), sigma)
 
 
 RIGIDITY_PAYLOADS = (AngleLocalizationShare, RigidityEigenShare)
+PAYLOAD_KINDS: dict[type, int] = {
+    MotionShare: draws.KIND_MOTION,
+    LocalizationState: draws.KIND_LOCALIZATION,
+    ConsensusState: draws.KIND_CONSENSUS,
+    ExcitationTable: draws.KIND_EXCITATION,
+    SfmEstimate: draws.KIND_SFM,
+    BearingShare: draws.KIND_BEARING,
+    AngleLocalizationShare: draws.KIND_ANGLE_LOCALIZATION,
+    RigidityEigenShare: draws.KIND_RIGIDITY_EIGEN,
+}
+"""The loss stream's word for each payload type (:func:`sim.draws.lost`): a copy's fate
+depends on what it is, not on the order the engine sends it in."""
 
 
 def _undirected(edges: IntArray, n: int) -> list[list[int]]:
@@ -231,16 +251,15 @@ def run(
     n = len(configs)
     p0 = np.asarray(p0_ned, dtype=float).reshape(n, 3)
     y0 = np.asarray(yaw0_rad, dtype=float).reshape(n)
-    edges = normalize_edges(configs[0].edges)
+    edges = normalize_edges(configs[0].graph.edges)
     pairs = reciprocal_pairs(edges)
     cores = [AgentCore(c) for c in configs]
     rng = np.random.default_rng(runner.seed)
-    loss_rng = random.Random(runner.seed)
     offsets = rng.uniform(-runner.yaw_offset_max_rad, runner.yaw_offset_max_rad, n).tolist()
 
     # the cameras see along the formation's edges and the rigidity layer's (AgentConfig)
-    extra = configs[0].rigidity_edges
-    sensed = normalize_edges([*configs[0].edges, *extra]) if extra else edges
+    extra = configs[0].rigidity.rigidity_edges
+    sensed = normalize_edges([*configs[0].graph.edges, *extra]) if extra else edges
     comm = _undirected(edges, n)
     # neighbours only the rigidity layer talks to get only its payloads (as a daemon subscribes)
     comm_rigidity = [
@@ -255,7 +274,7 @@ def run(
     n_rec = n_steps // runner.record_every + 1
     rec = Recording.allocate(edges, pairs, n, n_rec)
 
-    p = p0.tolist()
+    p = [(float(x[0]), float(x[1]), float(x[2])) for x in p0]
     yaw = y0.tolist()
     v_body = [(0.0, 0.0, 0.0)] * n
     w_body = [0.0] * n
@@ -336,7 +355,13 @@ def run(
                     *((r, rig_out) for r in comm_rigidity[i]),
                 ]:
                     if runner.loss > 0.0:
-                        target[r].extend(m for m in msgs if loss_rng.random() >= runner.loss)
+                        target[r].extend(
+                            m
+                            for m in msgs
+                            if not draws.lost(
+                                runner.seed, k, i, r, n, PAYLOAD_KINDS[type(m)], runner.loss
+                            )
+                        )
                     else:
                         target[r].extend(msgs)
         if k % runner.record_every == 0:
@@ -349,20 +374,9 @@ def run(
             if runner.velocity_bias_m_s > 0.0:
                 bi = bias[i]
                 u = (u[0] - bi[0], u[1] - bi[1], u[2])
-            c, s = math.cos(yaw[i]), math.sin(yaw[i])
-            v = (c * u[0] - s * u[1], s * u[0] + c * u[1], u[2])  # commanded, NED
-            if lag_v > 0.0:
-                vn = v_ned[i]
-                v = tuple(vn[m] + lag_v * (v[m] - vn[m]) for m in range(3))
-            if lag_w > 0.0:
-                w = w_body[i] + lag_w * (w - w_body[i])
-            v_ned[i] = v
-            pi = p[i]
-            p[i] = [pi[0] + dt * v[0], pi[1] + dt * v[1], pi[2] + dt * v[2]]
-            yaw[i] = yaw[i] + dt * w
-            c, s = math.cos(yaw[i]), math.sin(yaw[i])
-            v_body[i] = (c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2])
-            w_body[i] = w
+            p[i], yaw[i], v_ned[i], v_body[i], w_body[i] = kinematic_step(
+                p[i], yaw[i], v_ned[i], w_body[i], u, w, dt, lag_v, lag_w
+            )
         if progress is not None and (k % report_every == 0 or k == n_steps):
             progress(k / n_steps)
     for core in cores:
@@ -372,7 +386,7 @@ def run(
 
 
 def _extra_measurements(
-    p: list[list[float]], yaw: list[float], t: float, runner: RunnerConfig
+    p: list[tuple[float, float, float]], yaw: list[float], t: float, runner: RunnerConfig
 ) -> list[dict[str, tuple]]:
     """Per agent: ranges of ``runner.range_pairs`` (both ends) and mission target measurements."""
     n = len(p)
@@ -399,7 +413,7 @@ def _record(
     rec: Recording,
     r: int,
     t: float,
-    p: list[list[float]],
+    p: list[tuple[float, float, float]],
     yaw: list[float],
     v_body: list[tuple[float, float, float]],
     cores: list[AgentCore],

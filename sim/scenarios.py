@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from onboard.agent_config import AgentConfig, Mode
+from onboard.core.config import AgentConfig, Mode, build_config
 from onboard.geometry import FloatArray, bearings_body, rot_z
 from sim.runner import Recording, RunnerConfig, run
 
@@ -104,7 +104,7 @@ PAPER_SFM: dict[str, object] = {
     "sfm_folds_forget_s": 0.0,
     "sfm_wander_max": 0.0,
 }
-"""The flight stack's SfM safeguards against biased odometry (:class:`onboard.agent.AgentConfig`)
+"""The flight stack's SfM safeguards against biased odometry (:class:`onboard.core.config.AgentConfig`)
 turned off: the runner's odometry is exact unless asked, and the reproduction is the paper's."""
 
 
@@ -142,7 +142,7 @@ def agent_configs(name: str, seed: int = 0, **overrides: object) -> list[AgentCo
     extra.update(PAPER_SFM)
     extra.update(overrides)
     return [
-        AgentConfig(
+        build_config(
             agent_id=i,
             n_agents=len(P0_NED),
             edges=EDGES,
@@ -168,7 +168,7 @@ def run_scenario(
     """Run scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`,
     ``config_overrides`` to every vehicle's :class:`AgentConfig` (gains; ``bearingflock sweep``).
 
-    ``engine``: ``"cores"`` steps one :class:`onboard.agent.AgentCore` per vehicle (the
+    ``engine``: ``"cores"`` steps one :class:`onboard.core.agent.AgentCore` per vehicle (the
     reference); ``"compiled"`` runs :mod:`sim.compiled_runner` (the same team, compiled)."""
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import selectors
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -93,12 +94,35 @@ class SimConfig:
             raise ValueError(f"dt_s must be > 0, got {self.dt_s}")
         if self.bind_base is None:
             self.bind_base = self.client_base + 40
+        self._check_ports()
         if self.signing_keys is not None and len(self.signing_keys) != self.n:
             raise ValueError(f"signing_keys: {len(self.signing_keys)} keys for {self.n} vehicles")
 
     @property
     def n(self) -> int:
         return int(np.asarray(self.p_ned).reshape(-1, 3).shape[0])
+
+    def _check_ports(self) -> None:
+        """Every port the vehicles bind or send to must be a port (1..65535); ``bind_base = 0``
+        (``tcp_base = 0``) lets the kernel choose each vehicle's own UDP port (TCP server port),
+        printed by :meth:`SimServer.endpoints`.
+        A port of 70000 used to end the loop thread with an OverflowError at its first send."""
+        last = self.n - 1
+        ranges: list[tuple[str, int, int]] = []
+        if self.transport == "udp":
+            ranges.append(("port base (client ports)", self.client_base, self.client_base + last))
+            if self.bind_base != 0:
+                assert self.bind_base is not None
+                ranges.append(("bind base", self.bind_base, self.bind_base + last))
+            if self.gcs_port is not None:
+                ranges.append(("gcs port", self.gcs_port, self.gcs_port))
+        elif self.tcp_base != 0:
+            ranges.append(("tcp base", self.tcp_base, self.tcp_base + 10 * last))
+        for name, lo, hi in ranges:
+            if not (1 <= lo and hi <= 65535):
+                raise ValueError(
+                    f"{name}: ports {lo}..{hi} for {self.n} vehicle(s) must lie in 1..65535"
+                )
 
 
 TickHook = Callable[[float, World], None]
@@ -137,6 +161,9 @@ class SimServer:
         self.overruns = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.failure: BaseException | None = None
+        """The exception that ended the loop (:meth:`start`'s thread), ``None`` while it runs
+        or after a clean :meth:`stop`: a loop that died must never look alive."""
         self._step_cond = threading.Condition()
         try:
             for i in range(self.world.n):
@@ -160,9 +187,11 @@ class SimServer:
             dests = [(cfg.host, cfg.client_base + i)]
             if cfg.gcs_port is not None:
                 dests.append((cfg.host, cfg.gcs_port))
-            link = UdpLink(codec, (cfg.host, cfg.bind_base + i), dests, ap.handle)
+            port = 0 if cfg.bind_base == 0 else cfg.bind_base + i
+            link = UdpLink(codec, (cfg.host, port), dests, ap.handle)
         else:
-            link = TcpLink(codec, (cfg.host, cfg.tcp_base + 10 * i), ap.handle)
+            port = 0 if cfg.tcp_base == 0 else cfg.tcp_base + 10 * i
+            link = TcpLink(codec, (cfg.host, port), ap.handle)
         ap.send = link.send
         link.register(self.selector)
         self.autopilots.append(ap)
@@ -224,15 +253,45 @@ class SimServer:
             self.poll(self.clock.wall_wait_s(self.world.t_s + dt))
 
     def run(self) -> None:
-        """Run until :meth:`stop` (or Ctrl-C in the caller)."""
-        while not self._stop.is_set():
-            self.run_once()
+        """Run until :meth:`stop` (or Ctrl-C in the caller); an exception that escapes a step
+        is kept in :attr:`failure`, stops the loop and is raised again."""
+        try:
+            while not self._stop.is_set():
+                self.run_once()
+        except BaseException as exc:
+            self.failure = exc
+            self._stop.set()
+            with self._step_cond:
+                self._step_cond.notify_all()
+            raise
+
+    def _run_thread(self) -> None:
+        try:
+            self.run()
+        except BaseException:  # kept in self.failure; the owner decides (the CLI exits 1)
+            import traceback
+
+            traceback.print_exc(file=sys.stderr)
 
     def start(self) -> SimServer:
-        """Run the loop in a background thread (tests, embedding)."""
-        self._thread = threading.Thread(target=self.run, name="bearingflock-sim", daemon=True)
+        """Run the loop in a background thread (tests, embedding); watch :attr:`failure` or
+        :meth:`alive`: a loop that dies sets it and stops."""
+        self._thread = threading.Thread(
+            target=self._run_thread, name="bearingflock-sim", daemon=True
+        )
         self._thread.start()
         return self
+
+    def alive(self) -> bool:
+        """Whether the loop runs: started, not stopped, not failed."""
+        return self._thread is not None and self._thread.is_alive() and not self._stop.is_set()
+
+    def failure_text(self) -> str:
+        """One line naming what ended the loop (``""`` if nothing did)."""
+        exc = self.failure
+        if exc is None:
+            return ""
+        return f"simulator loop died at t={self.world.t_s:.2f}s: {type(exc).__name__}: {exc}"
 
     def stop(self) -> None:
         self._stop.set()
@@ -263,6 +322,8 @@ class SimServer:
             deadline = time.monotonic() + timeout_s
             with self._step_cond:
                 while self.world.t_s + self.config.dt_s <= t_s + 1e-9:
+                    if self.failure is not None:
+                        raise RuntimeError(self.failure_text()) from self.failure
                     left = deadline - time.monotonic()
                     if left <= 0:
                         raise TimeoutError(f"simulation did not reach t={t_s}")
@@ -307,9 +368,15 @@ def ports_needed(config: SimConfig) -> list[tuple[int, int]]:
     """(socket type, port) pairs a simulator with ``config`` binds or sends to."""
     n = config.n
     if config.transport == "tcp":
+        if config.tcp_base == 0:
+            return []
         return [(socket.SOCK_STREAM, config.tcp_base + 10 * i) for i in range(n)]
     assert config.bind_base is not None
-    out = [(socket.SOCK_DGRAM, config.bind_base + i) for i in range(n)]
+    out = (
+        []
+        if config.bind_base == 0
+        else [(socket.SOCK_DGRAM, config.bind_base + i) for i in range(n)]
+    )
     out += [(socket.SOCK_DGRAM, config.client_base + i) for i in range(n)]
     if config.gcs_port is not None:
         out.append((socket.SOCK_DGRAM, config.gcs_port))

@@ -228,6 +228,45 @@ class World:
         return a, v, r
 
 
+Vec3 = tuple[float, float, float]
+
+
+def kinematic_step(
+    p_ned: Vec3,
+    yaw_rad: float,
+    v_ned: Vec3,
+    yaw_rate_rad_s: float,
+    u_cmd_body: Vec3,
+    w_cmd_rad_s: float,
+    dt_s: float,
+    lag_v: float,
+    lag_w: float,
+) -> tuple[Vec3, float, Vec3, Vec3, float]:
+    """One explicit-Euler step of paper 000's vehicle model (eq. 1), ``p' = R_z(psi) u``,
+    ``psi' = w``, of one vehicle: the headless runner's world (:mod:`sim.runner`, both engines).
+
+    The commanded heading-frame velocity ``u_cmd_body`` is rotated by the current yaw; with
+    ``lag_v``/``lag_w`` in ``(0, 1]`` (``dt / tau``, 0: none) the flown NED velocity and yaw
+    rate move that fraction from the previous ones (``v_ned``, ``yaw_rate_rad_s``) towards the
+    command (a discrete first-order autopilot lag). The yaw is not wrapped. Returns ``(p_ned,
+    yaw_rad, v_ned, v_body, yaw_rate_rad_s)`` after the step (``v_body`` in the new heading)."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    v0 = c * u_cmd_body[0] - s * u_cmd_body[1]
+    v1 = s * u_cmd_body[0] + c * u_cmd_body[1]
+    v2 = u_cmd_body[2]
+    w = w_cmd_rad_s
+    if lag_v > 0.0:
+        v0 = v_ned[0] + lag_v * (v0 - v_ned[0])
+        v1 = v_ned[1] + lag_v * (v1 - v_ned[1])
+        v2 = v_ned[2] + lag_v * (v2 - v_ned[2])
+    if lag_w > 0.0:
+        w = yaw_rate_rad_s + lag_w * (w - yaw_rate_rad_s)
+    p = (p_ned[0] + dt_s * v0, p_ned[1] + dt_s * v1, p_ned[2] + dt_s * v2)
+    yaw = yaw_rad + dt_s * w
+    c, s = math.cos(yaw), math.sin(yaw)
+    return p, yaw, (v0, v1, v2), (c * v0 + s * v1, -s * v0 + c * v1, v2), w
+
+
 def commanded_velocity(
     p_ned: FloatArray,
     yaw_rad: FloatArray,

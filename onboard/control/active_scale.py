@@ -44,11 +44,21 @@ LAMBDA_FLOOR = 1e-3
 momentary loss of excitation on one edge cannot swamp the network average for long."""
 
 
+def lambda_bar_term(lam: float, p: float = P_NORM) -> float:
+    """One edge's ``lambda_k^p`` in eq. 11, the excitation floored at :data:`LAMBDA_FLOOR`."""
+    return max(lam, LAMBDA_FLOOR) ** p
+
+
+def lambda_bar_of_sum(power_sum: float, p: float = P_NORM) -> float:
+    """``(sum_k lambda_k^p)^(1/p)`` (eq. 11) from the sum of :func:`lambda_bar_term`."""
+    return power_sum ** (1.0 / p)
+
+
 def lambda_bar(excitations: Sequence[float], p: float = P_NORM) -> float:
     """Observability index ``(sum_k lambda_k^p)^(1/p)`` (eq. 11); 0 for an empty edge set."""
     if not excitations:
         return 0.0
-    return sum(max(lam, LAMBDA_FLOOR) ** p for lam in excitations) ** (1.0 / p)
+    return lambda_bar_of_sum(sum(lambda_bar_term(lam, p) for lam in excitations), p)
 
 
 def lambda_bar_from_power_mean(mean_power: float, n_agents: int, p: float = P_NORM) -> float:
@@ -83,12 +93,19 @@ def lambda_bar_gradient(
 
     ``edges`` yields ``(beta_ij, u_ij, lambda_ij)`` for agent ``i``'s reciprocal edges.
     """
-    g0 = g1 = g2 = 0.0
+    g: Vec3 = (0.0, 0.0, 0.0)
     for beta, u_ij, lam in edges:
-        w = soft_min_weight(lam, lam_bar, p)
-        d = excitation_gradient(beta, u_ij)
-        g0, g1, g2 = g0 + w * d[0], g1 + w * d[1], g2 + w * d[2]
-    return (g0, g1, g2)
+        g = lambda_bar_gradient_term(g, beta, u_ij, lam, lam_bar, p)
+    return g
+
+
+def lambda_bar_gradient_term(
+    acc: Vec3, beta_ij: Vec3, u_ij: Vec3, lam: float, lam_bar: float, p: float = P_NORM
+) -> Vec3:
+    """``acc + (lambda_ij / lambdabar)^(p-1) d lambda_ij / d u_i``: one edge of eq. 12's gradient."""
+    w = soft_min_weight(lam, lam_bar, p)
+    d = excitation_gradient(beta_ij, u_ij)
+    return (acc[0] + w * d[0], acc[1] + w * d[1], acc[2] + w * d[2])
 
 
 def active_velocity_rate(

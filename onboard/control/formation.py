@@ -38,24 +38,49 @@ K_FORMATION = 0.5
 K_YAW = 1.0
 
 
+def formation_out_term(acc: Vec3, beta_ij: Vec3, beta_des_ij: Vec3) -> Vec3:
+    """``acc + (beta_ij - beta*_ij)``: one bearing the agent measures, in its body frame."""
+    return (
+        acc[0] + beta_ij[0] - beta_des_ij[0],
+        acc[1] + beta_ij[1] - beta_des_ij[1],
+        acc[2] + beta_ij[2] - beta_des_ij[2],
+    )
+
+
+def formation_in_term(acc: Vec3, psi_ij: float, beta_ji: Vec3, beta_des_ji: Vec3) -> Vec3:
+    """``acc - iR_j (beta_ji - beta*_ji)``: one bearing a neighbour measures to the agent, with
+    ``iR_j = R_z(psi_ij)``, ``psi_ij = psihat_j - psihat_i``."""
+    e0, e1, e2 = (
+        beta_ji[0] - beta_des_ji[0],
+        beta_ji[1] - beta_des_ji[1],
+        beta_ji[2] - beta_des_ji[2],
+    )
+    c, s = math.cos(psi_ij), math.sin(psi_ij)
+    return (acc[0] - (c * e0 - s * e1), acc[1] - (s * e0 + c * e1), acc[2] - e2)
+
+
 def formation_velocity(
     out_edges: Iterable[tuple[Vec3, Vec3]],
     in_edges: Iterable[tuple[float, Vec3, Vec3]],
     k_f: float = K_FORMATION,
 ) -> Vec3:
-    """Body-frame ``u_i^F`` of the gradient law above.
+    """Body-frame ``u_i^F`` of the gradient law above (paper 002 eq. 20): the out terms
+    (:func:`formation_out_term`), then the in terms (:func:`formation_in_term`), times ``k_F``.
 
     ``out_edges``: ``(beta_ij, beta*_ij)``; ``in_edges``: ``(psi_ij, beta_ji, beta*_ji)`` with
     ``psi_ij = psihat_j - psihat_i``.
     """
-    a0 = a1 = a2 = 0.0
+    a: Vec3 = (0.0, 0.0, 0.0)
     for beta, des in out_edges:
-        a0, a1, a2 = a0 + beta[0] - des[0], a1 + beta[1] - des[1], a2 + beta[2] - des[2]
+        a = formation_out_term(a, beta, des)
     for psi_ij, beta, des in in_edges:
-        e0, e1, e2 = beta[0] - des[0], beta[1] - des[1], beta[2] - des[2]
-        c, s = math.cos(psi_ij), math.sin(psi_ij)
-        a0, a1, a2 = a0 - (c * e0 - s * e1), a1 - (s * e0 + c * e1), a2 - e2
-    return (k_f * a0, k_f * a1, k_f * a2)
+        a = formation_in_term(a, psi_ij, beta, des)
+    return (k_f * a[0], k_f * a[1], k_f * a[2])
+
+
+def yaw_alignment_term(yaw_i_rad: float, yaw_j_rad: float, yaw_des_ij_rad: float) -> float:
+    """``sin((psi_j - psi_i) - psi*_ij)``: one neighbour's term of the yaw alignment."""
+    return math.sin(yaw_j_rad - yaw_i_rad - yaw_des_ij_rad)
 
 
 def yaw_alignment_rate(
@@ -63,7 +88,7 @@ def yaw_alignment_rate(
 ) -> float:
     """``w_i^F = k_psi sum_j sin((psi_j - psi_i) - psi*_ij)``; ``neighbours`` yields
     ``(psi_j, psi*_ij)`` with ``psi*_ij = psi*_j - psi*_i``."""
-    return k_psi * sum(math.sin(yaw_j - yaw_i_rad - des) for yaw_j, des in neighbours)
+    return k_psi * sum(yaw_alignment_term(yaw_i_rad, yaw_j, des) for yaw_j, des in neighbours)
 
 
 def formation_cost(

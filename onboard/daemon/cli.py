@@ -67,8 +67,10 @@ def agent(
     """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
     import msgspec
 
+    from messages.fatal import FatalThreads
     from messages.rigidity import RIGIDITY_KINDS
     from messages.sim import clock_key
+    from messages.transport import TransportError
     from onboard.autopilot import open_link
     from onboard.autopilot.base import LinkConfig
     from onboard.daemon.bearings import SimCameraSource
@@ -117,16 +119,20 @@ def agent(
         raise typer.Exit(2) from None
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
-    neighbours = {j for e in core_config.edges for j in e if agent_id in e} - {agent_id}
+    neighbours = {j for e in core_config.graph.edges for j in e if agent_id in e} - {agent_id}
     rigidity_only = (
-        {j for e in core_config.rigidity_edges for j in e if agent_id in e}
+        {j for e in core_config.rigidity.rigidity_edges for j in e if agent_id in e}
         - neighbours
         - {agent_id}
     )
-    peers = PeerLink(
-        c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss,
-        listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
-    )  # fmt: skip
+    try:
+        peers = PeerLink(
+            c.fleet, agent_id, range(fleet.n), settings, drops, neighbours, c.zenoh.inject_loss,
+            listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
+        )  # fmt: skip
+    except TransportError as exc:  # a Zenoh port in use, a bad endpoint or config file
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
     if signing_key is not None:  # [security]: Zenoh over mutual TLS
         _warn_without_peers(peers.session, TLS_PEER_WAIT_S)
     if c.clock == "sim":
@@ -192,6 +198,9 @@ def agent(
     else:
         source = SimCameraSource(peers, drops, clock.now)
     daemon = AgentDaemon(fleet, agent_id, link, peers, source, clock, drops, url, on_status)
+    # a worker thread that dies (the flight sequence, the link's loops) stops the daemon, which
+    # holds and exits 1 saying why, instead of running on half alive (messages/fatal.py)
+    fatal = FatalThreads(on_fatal=lambda _text: daemon.stop_event.set()).install()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: daemon.stop_event.set())
     try:
@@ -216,6 +225,10 @@ def agent(
                 lc.signing_unavailable,
             )  # fmt: skip
         _close_all(link.close, peers.close)
+        fatal.uninstall()
+    if fatal.message:  # a worker died: the daemon held and stopped, and says why
+        typer.echo(f"error: {fatal.message}", err=True)
+        raise typer.Exit(1)
 
 
 TLS_PEER_WAIT_S = 10.0

@@ -60,7 +60,7 @@
     rate_hz = 20.0                    # the layer's steps (a slow outer loop), <= rates.core
 
     [sfm]                             # the SfM observers against a biased odometry (0: off,
-                                      # paper 000's observer; onboard/agent.py AgentConfig)
+                                      # paper 000's observer; onboard/core/config.py AgentConfig)
     bias_speed_m_s = 0.1              # no scale correction below this speed across a bearing
     wander_window_s = 2.0             # an estimate corrected by more than wander_max within
     wander_max = 0.02                 # wander_window_s is not converged (active motion on)
@@ -104,7 +104,8 @@ from typing import Literal
 import msgspec
 
 from messages.formation import Formation, FormationError, load_formation
-from messages.transport import ZenohSettings, loopback_endpoint, with_mutual_tls
+from messages.keys import key
+from messages.transport import ZenohSettings, check_endpoint, loopback_endpoint, with_mutual_tls
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
@@ -168,7 +169,7 @@ class RigiditySection(msgspec.Struct, forbid_unknown_fields=True):
 
 
 class SfmSection(msgspec.Struct, forbid_unknown_fields=True):
-    """The SfM observers' safeguards against a biased odometry (onboard/agent.py AgentConfig;
+    """The SfM observers' safeguards against a biased odometry (onboard/core/config.py AgentConfig;
     0 turns each off: paper 000's observer)."""
 
     bias_speed_m_s: float = 0.1
@@ -302,6 +303,51 @@ def mavlink_url(m: MavlinkSettings, agent_id: int) -> str:
         ) from None
 
 
+MAVLINK_SCHEMES = frozenset({"udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin", "tcpout"})
+"""Network schemes of ``[mavlink] url`` (pymavlink's; MAVSDK's ``scheme://`` forms too)."""
+
+
+def check_mavlink_url(url: str) -> str:
+    """``url`` if it is a serial device (:func:`onboard.autopilot.base.serial_device`) or
+    ``SCHEME:HOST:PORT`` / ``SCHEME://HOST:PORT`` with a scheme of :data:`MAVLINK_SCHEMES` and
+    a port in 1..65535; else ``ValueError`` (a URL such as ``bogus:::`` made a daemon retry
+    forever, a port of 70000 ended its link thread)."""
+    from onboard.autopilot.base import serial_device
+
+    if serial_device(url) is not None:
+        return url
+    scheme, sep, rest = url.partition(":")
+    rest = rest[2:] if rest.startswith("//") else rest
+    host, colon, port = rest.rpartition(":")
+    if not sep or scheme not in MAVLINK_SCHEMES or not colon or not port.isdigit():
+        raise ValueError(
+            f"mavlink.url {url!r}: expected udpin:HOST:PORT, udpout:, tcp:HOST:PORT (or "
+            "scheme://HOST:PORT) or a serial device such as serial:/dev/ttyACM0:921600"
+        )
+    if not 1 <= int(port) <= 65535:
+        raise ValueError(f"mavlink.url {url!r}: port {port} outside 1..65535 (mavlink.port_base?)")
+    if not host and scheme not in ("udpin", "tcpin", "udp"):
+        raise ValueError(f"mavlink.url {url!r}: no host")
+    return url
+
+
+def _check_zenoh(path: Path, z: ZenohSection, n: int) -> None:
+    """``[zenoh]``: the fleet's ports (``port_base .. port_base + n``) in 1..65535, every
+    ``listen``/``connect`` endpoint well formed (``{port}`` filled in), ``config_file`` present."""
+    if not (1 <= z.port_base and z.port_base + n <= 65535):
+        raise ConfigError(
+            f"{path}: zenoh.port_base: ports {z.port_base}..{z.port_base + n} (the simulator and "
+            f"{n} agents) must lie in 1..65535"
+        )
+    try:
+        for e in [*z.listen, *z.connect]:
+            check_endpoint(e.replace("{port}", str(z.port_base + 1)))
+    except ValueError as exc:
+        raise ConfigError(f"{path}: zenoh: {exc}") from None
+    if z.config_file and not (path.parent / z.config_file).is_file():
+        raise ConfigError(f"{path}: zenoh.config_file: {path.parent / z.config_file} is not a file")
+
+
 def load_fleet(path: str | Path) -> Fleet:
     """Read and validate a fleet file and the formation it names."""
     path = Path(path)
@@ -319,16 +365,20 @@ def load_fleet(path: str | Path) -> Fleet:
         raise ConfigError(f"{path}: {msg}") from None
     except msgspec.DecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+    try:
+        key(config.fleet, 0, "status")  # the fleet name is part of every Zenoh key
+    except ValueError as exc:
+        raise ConfigError(f"{path}: fleet: {exc}") from None
     for name, value in msgspec.structs.asdict(config.rates).items():
-        if not value > 0.0:
-            raise ConfigError(f"{path}: rates.{name}: must be > 0, got {value}")
+        if not (value > 0.0 and math.isfinite(value)):
+            raise ConfigError(f"{path}: rates.{name}: must be > 0 and finite, got {value}")
     if not config.limits.min_alt_m < config.limits.max_alt_m:
         raise ConfigError(f"{path}: limits.min_alt_m must be < limits.max_alt_m")
     if config.rates.core < config.rates.publish:
         raise ConfigError(f"{path}: rates.core must be >= rates.publish")
     for name, value in msgspec.structs.asdict(config.limits).items():
-        if not value > 0.0:
-            raise ConfigError(f"{path}: limits.{name}: must be > 0, got {value}")
+        if not (value > 0.0 and math.isfinite(value)):
+            raise ConfigError(f"{path}: limits.{name}: must be > 0 and finite, got {value}")
     if not 0.0 <= config.zenoh.inject_loss < 1.0:
         raise ConfigError(
             f"{path}: zenoh.inject_loss: must be in [0, 1), got {config.zenoh.inject_loss}"
@@ -385,9 +435,11 @@ def load_fleet(path: str | Path) -> Fleet:
             f"{path}: mavlink.port_stride: must be >= 1, got {config.mavlink.port_stride}"
         )
     try:
-        mavlink_url(config.mavlink, 0)
+        for agent_id in range(formation.n):
+            check_mavlink_url(mavlink_url(config.mavlink, agent_id))
     except ValueError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+    _check_zenoh(path, config.zenoh, formation.n)
     base = config.mavlink.system_id_base
     if not (1 <= base and base + formation.n - 1 <= 255):
         raise ConfigError(

@@ -33,6 +33,7 @@ import numpy as np
 from messages.agent import AgentStatus, OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand
+from messages.fatal import is_permanent
 from messages.limits import (
     ANGLE_MAX_RAD,
     DIMENSIONLESS_MAX,
@@ -41,9 +42,17 @@ from messages.limits import (
     STAMP_FUTURE_MAX_S,
 )
 from messages.vocabulary import Alarm
-from onboard.agent import AgentConfig, AgentCore
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
 from onboard.autopilot.states import HOLD_MODE
+from onboard.core.agent import AgentCore
+from onboard.core.config import (
+    AgentConfig,
+    FormationGains,
+    Graph,
+    RigidityGains,
+    Safety,
+    ScaleGains,
+)
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
@@ -99,20 +108,21 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
     beta, _ = bearings_body(f.p_ned, f.yaw_rad, e)
     centroid = f.p_ned.mean(axis=0)
     prior = centroid + c.prior_scale * (f.p_ned - centroid)
-    return AgentConfig(
+    graph = Graph(
         agent_id=agent_id,
         n_agents=f.n,
         edges=tuple((int(i), int(j)) for i, j in e),
-        mode=c.mode,
         p_hat0_ned=tuple(tuple(float(x) for x in row) for row in prior),
         yaw_hat0_rad=tuple(float(y) for y in f.yaw_rad),
+    )
+    formation = FormationGains(
         desired_beta_body=tuple(
             (int(i), int(j), (float(b[0]), float(b[1]), float(b[2])))
             for (i, j), b in zip(e, beta, strict=True)
         ),
         desired_yaw_rad=tuple(float(y) for y in f.yaw_rad),
-        v_max_m_s=c.limits.max_speed_m_s,
-        yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s,
+    )
+    rigidity = RigidityGains(
         rigidity_maintenance=r.maintenance,
         rigidity_edges=(
             tuple((int(i), int(j)) for i, j in complete_graph(f.n))
@@ -128,11 +138,18 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
         lambda_safe=r.lambda_safe,
         lambda_min=r.lambda_min,
         r_safe_m=r.r_safe_m,
+    )
+    scale = ScaleGains(
         sfm_bias_speed_m_s=c.sfm.bias_speed_m_s,
         sfm_wander_window_s=c.sfm.wander_window_s,
         sfm_wander_max=c.sfm.wander_max,
         sfm_folds_forget_s=c.sfm.folds_forget_s,
     )
+    safety = Safety(
+        v_max_m_s=c.limits.max_speed_m_s, yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s
+    )
+    return AgentConfig(graph=graph, mode=c.mode, safety=safety, scale=scale,
+                       formation=formation, rigidity=rigidity)  # fmt: skip
 
 
 def _finite_within(x: float | None, limit: float) -> bool:
@@ -228,7 +245,7 @@ class AgentDaemon:
         self.stop_event = threading.Event()
         self._landing = threading.Event()
         self._actions: queue.Queue[tuple[str, FleetCommand | None]] = queue.Queue()
-        self._graph_ids = sorted({int(x) for e in self.core.config.edges for x in e})
+        self._graph_ids = sorted({int(x) for e in self.core.config.graph.edges for x in e})
         # the formation's neighbours, and those only the rigidity layer talks to
         self._neighbours = frozenset(self.core.neighbours) | self.core.rigidity_neighbours
         self._last_core_t: float | None = None
@@ -236,7 +253,7 @@ class AgentDaemon:
         self._lost_since: dict[int, float] = {}
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
-        self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.peer_timeout_s)
+        self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.safety.peer_timeout_s)
         self.seq_window = SeqWindow()
         self._skewed: frozenset[int] = frozenset()
         self._status_seq = 0
@@ -264,6 +281,8 @@ class AgentDaemon:
                 self.link.connect(self.url, timeout_s=5.0)
                 break
             except LinkError as exc:
+                if is_permanent(exc):  # e.g. the udpin port is taken: ends the process (issue 23)
+                    raise
                 self.state.set("connecting", str(exc))
                 self.stop_event.wait(1.0)
         if self.stop_event.is_set():
@@ -369,7 +388,11 @@ class AgentDaemon:
             keep = [k for k in range(self.fleet.n) if k not in key]
             idx = {k: m for m, k in enumerate(keep)}
             edges = np.array(
-                [(idx[i], idx[j]) for i, j in self.core.config.edges if i in idx and j in idx],
+                [
+                    (idx[i], idx[j])
+                    for i, j in self.core.config.graph.edges
+                    if i in idx and j in idx
+                ],
                 dtype=np.int64,
             ).reshape(-1, 2)
             f = self.fleet.formation
@@ -544,12 +567,12 @@ class AgentDaemon:
         """The daemon's clock went back (a restarted simulator, ``clock_resync``): what the
         daemon keeps by time (peers' loss times, the clock check's windows, the last failed
         tick) would lie in the future and never expire; it starts again. The core does the
-        same for its own state (:meth:`onboard.agent.AgentCore.step`)."""
+        same for its own state (:meth:`onboard.core.agent.AgentCore.step`)."""
         log.warning(
             "clock went back from %.3f to %.3f s: restarting time-keyed state", last_s, now_s
         )
         self._lost_since.clear()
-        self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.peer_timeout_s)
+        self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.safety.peer_timeout_s)
         self._step_error_s = -math.inf
         self._newest_frame_s = -math.inf
 

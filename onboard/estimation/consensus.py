@@ -29,6 +29,20 @@ K_P = 20.0
 K_I = 20.0
 
 
+def pi_input_rate(phi_i: float, x_i: float, gamma: float = GAMMA) -> float:
+    """One component of ``x_i'``'s input term, ``gamma (phi_i - x_i)``."""
+    return gamma * (phi_i - x_i)
+
+
+def pi_coupling_rates(
+    x_i: float, z_i: float, x_j: float, z_j: float, k_p: float = K_P, k_i: float = K_I
+) -> tuple[float, float]:
+    """One neighbour's share of one component of ``(x_i', z_i')``:
+    ``(-k_p (x_i - x_j) + k_i (z_i - z_j), -k_i (x_i - x_j))``."""
+    dxm = x_i - x_j
+    return -k_p * dxm + k_i * (z_i - z_j), -(k_i * dxm)
+
+
 def pi_consensus_rates(
     x_i: Sequence[float],
     z_i: Sequence[float],
@@ -38,14 +52,16 @@ def pi_consensus_rates(
     k_p: float = K_P,
     k_i: float = K_I,
 ) -> tuple[list[float], list[float]]:
-    """``(x_i', z_i')`` of the PI estimator given the neighbours' latest ``(x_j, z_j)``."""
-    dx = [gamma * (f - x) for f, x in zip(phi_i, x_i, strict=True)]
+    """``(x_i', z_i')`` of the PI estimator given the neighbours' latest ``(x_j, z_j)``: the
+    input term (:func:`pi_input_rate`) plus each neighbour's coupling
+    (:func:`pi_coupling_rates`), summed in neighbour order."""
+    dx = [pi_input_rate(f, x, gamma) for f, x in zip(phi_i, x_i, strict=True)]
     dz = [0.0] * len(x_i)
     for x_j, z_j in neighbours:
         for m in range(len(x_i)):
-            dxm = x_i[m] - x_j[m]
-            dx[m] += -k_p * dxm + k_i * (z_i[m] - z_j[m])
-            dz[m] -= k_i * dxm
+            a, b = pi_coupling_rates(x_i[m], z_i[m], x_j[m], z_j[m], k_p, k_i)
+            dx[m] += a
+            dz[m] += b
     return dx, dz
 
 

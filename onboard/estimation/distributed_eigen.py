@@ -30,7 +30,7 @@ fake a small eigenvalue), ``lambda_hat = min theta``, ``H c = theta G' c``. A mo
 inside the span moves the Ritz value at once. Its Ritz vector ``y = (I - P_T) V c`` (scaled so
 ``|y|^2 = N``) gives the gradient ``d lambda/dx = y^T (dM_w/dx) y / N`` (paper 003 eq. 21);
 the other Ritz pairs give the same for the next modes, which the rigidity layer blends into the
-gradient of a smooth minimum (:mod:`onboard.rigidity_layer`).
+gradient of a smooth minimum (:mod:`onboard.core.rigidity`).
 
 **What is local.** ``M_w = sum_a W_a r_a r_a^T`` and an angle ``a = (i, j, k)`` involves only
 ``i`` and the two neighbours it sees: agent ``i`` evaluates its angles' part of ``M_w V``
@@ -351,7 +351,7 @@ def run_rounds(
     ``(lambda_hat (rounds, N), y (N, 3))``, ``y`` agent 0's view of the smallest Ritz vector
     (zeros if none). ``switch = (round, p, yaw)`` replaces the framework at that round (a
     sudden change, to measure tracking). For tests and benchmarks: the agent core runs the
-    same estimator through :mod:`onboard.rigidity_layer`."""
+    same estimator through :mod:`onboard.core.rigidity`."""
     p = np.asarray(p_ned, dtype=float)
     yaw = np.asarray(yaw_rad, dtype=float)
     n = len(p)

@@ -28,6 +28,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from onboard.estimation.angles import wrap_rad
+
 Vec3 = tuple[float, float, float]
 
 K_L = 100.0
@@ -72,6 +74,48 @@ def distance_term_gradient(p_i: Vec3, p_j: Vec3, d_hat_m: float) -> Vec3:
     return (-e * r0, -e * r1, -e * r2)
 
 
+def localization_euler_step(
+    p_hat_ned: Vec3,
+    yaw_hat_rad: float,
+    dt: float,
+    v_body: Vec3,
+    yaw_rate_rad_s: float,
+    g_bearing: Vec3,
+    g_bearing_yaw: float,
+    g_distance: Vec3,
+    k_l: float = K_L,
+    k_d: float = K_D,
+    max_correction_m_s: float = MAX_CORRECTION_M_S,
+    max_correction_rad_s: float = MAX_CORRECTION_RAD_S,
+) -> tuple[Vec3, float]:
+    """One explicit-Euler step of agent ``i``'s block of eq. 6 (paper 000 eq. 6):
+    ``phat_i' = R_z(psihat_i) u_i - f``, ``psihat_i' = w_i - f_psi`` with the correction
+    ``f = k_L g_bearing + k_d g_distance`` (norm saturated at ``max_correction_m_s``) and
+    ``f_psi = k_L g_bearing_yaw`` (clipped at ``max_correction_rad_s``).
+
+    ``g_bearing``/``g_bearing_yaw``: sums of :func:`bearing_term_gradient` over the agent's
+    edges (world frame), ``g_distance``: sum of :func:`distance_term_gradient`. Returns
+    ``(phat_i, psihat_i)`` after the step, the yaw wrapped to ``[-pi, pi]``."""
+    p = p_hat_ned
+    c, s = math.cos(yaw_hat_rad), math.sin(yaw_hat_rad)
+    kl, kd = k_l, k_d
+    f0 = kl * g_bearing[0] + kd * g_distance[0]
+    f1 = kl * g_bearing[1] + kd * g_distance[1]
+    f2 = kl * g_bearing[2] + kd * g_distance[2]
+    norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    if norm > max_correction_m_s:
+        f0 = f0 * max_correction_m_s / norm
+        f1 = f1 * max_correction_m_s / norm
+        f2 = f2 * max_correction_m_s / norm
+    f_yaw = max(-max_correction_rad_s, min(max_correction_rad_s, kl * g_bearing_yaw))
+    p_new = (
+        p[0] + dt * (c * v_body[0] - s * v_body[1] - f0),
+        p[1] + dt * (s * v_body[0] + c * v_body[1] - f1),
+        p[2] + dt * (v_body[2] - f2),
+    )
+    return p_new, wrap_rad(yaw_hat_rad + dt * (yaw_rate_rad_s - f_yaw))
+
+
 @dataclass(slots=True)
 class LocalizationFilter:
     """Agent ``i``'s block of the localization filter (eq. 6), integrated with explicit Euler."""
@@ -111,16 +155,7 @@ class LocalizationFilter:
         for p_j, d_hat in distances:
             gd = distance_term_gradient(p, p_j, d_hat)
             d0, d1, d2 = d0 + gd[0], d1 + gd[1], d2 + gd[2]
-        c, s = math.cos(yaw), math.sin(yaw)
-        kl, kd = self.k_l, self.k_d
-        f0, f1, f2 = kl * g0 + kd * d0, kl * g1 + kd * d1, kl * g2 + kd * d2
-        norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-        if norm > self.max_correction_m_s:
-            f0, f1, f2 = (f * self.max_correction_m_s / norm for f in (f0, f1, f2))
-        f_yaw = max(-self.max_correction_rad_s, min(self.max_correction_rad_s, kl * g_yaw))
-        self.p_hat_ned = (
-            p[0] + dt * (c * v_body[0] - s * v_body[1] - f0),
-            p[1] + dt * (s * v_body[0] + c * v_body[1] - f1),
-            p[2] + dt * (v_body[2] - f2),
-        )
-        self.yaw_hat_rad = math.remainder(yaw + dt * (yaw_rate_rad_s - f_yaw), math.tau)
+        self.p_hat_ned, self.yaw_hat_rad = localization_euler_step(
+            p, yaw, dt, v_body, yaw_rate_rad_s, (g0, g1, g2), g_yaw, (d0, d1, d2),
+            self.k_l, self.k_d, self.max_correction_m_s, self.max_correction_rad_s,
+        )  # fmt: skip

@@ -19,10 +19,18 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
+from onboard.estimation.angles import wrap_rad
+
 Vec3 = tuple[float, float, float]
 
 MIN_HORIZONTAL = 0.1
 """Pairs whose bearings have a smaller horizontal norm are too close to vertical and ignored."""
+FILTER_GAIN = 0.2
+"""Weight of a new pair in the circular low-pass filter of the offset (1 = no filtering)."""
+STAMP_TOLERANCE_S = 0.005
+"""Largest stamp difference of an own and a peer frame that still make a pair."""
+PAIR_HISTORY = 16
+"""Frames of each side kept for pairing."""
 
 
 def yaw_offset(beta_ij: Vec3, beta_ji: Vec3, yaw_i_rad: float, yaw_j_rad: float) -> float:
@@ -34,7 +42,25 @@ def yaw_offset(beta_ij: Vec3, beta_ji: Vec3, yaw_i_rad: float, yaw_j_rad: float)
     psi_ij = (
         math.atan2(-beta_ij[1], -beta_ij[0]) - math.atan2(beta_ji[1], beta_ji[0]) + math.pi
     ) % math.tau - math.pi
-    return math.remainder(psi_ij - (yaw_j_rad - yaw_i_rad), math.tau)
+    return wrap_rad(psi_ij - (yaw_j_rad - yaw_i_rad))
+
+
+def relative_yaw_now(yaw_i_rad: float, yaw_j_rad: float, offset_rad: float) -> float:
+    """``psi_ij = psi_j - psi_i`` (wrapped) from the two current odometry yaws and the offset."""
+    return wrap_rad(yaw_j_rad - yaw_i_rad + offset_rad)
+
+
+def filter_offset(
+    cos_prev: float, sin_prev: float, first: bool, offset_rad: float, gain: float = FILTER_GAIN
+) -> tuple[float, float, float]:
+    """Circular low-pass filter of the offset: the unit vector ``(cos, sin)`` moves a fraction
+    ``gain`` towards the new pair's (``first``: it starts there). Returns the filter's new
+    ``(cos, sin)`` and its angle."""
+    c, s = math.cos(offset_rad), math.sin(offset_rad)
+    if not first:
+        c = cos_prev + gain * (c - cos_prev)
+        s = sin_prev + gain * (s - sin_prev)
+    return c, s, math.atan2(s, c)
 
 
 def is_usable_pair(beta_ij: Vec3, beta_ji: Vec3, min_horizontal: float = MIN_HORIZONTAL) -> bool:
@@ -54,10 +80,10 @@ class RelativeYawEdge:
     from the two current odometry yaws, or ``None`` until one pair has been matched.
     """
 
-    gain: float = 0.2
+    gain: float = FILTER_GAIN
     """Weight of a new pair in the circular low-pass filter of the offset (1 = no filtering)."""
-    stamp_tolerance_s: float = 0.005
-    history: int = 16
+    stamp_tolerance_s: float = STAMP_TOLERANCE_S
+    history: int = PAIR_HISTORY
     _own: deque[tuple[float, float, Vec3]] = field(default_factory=deque)
     _peer: deque[tuple[float, float, Vec3]] = field(default_factory=deque)
     _cos: float = 0.0
@@ -75,7 +101,7 @@ class RelativeYawEdge:
         """Current ``psi_ij = psi_j - psi_i`` (rad, wrapped) from the two odometry yaws."""
         if self.offset_rad is None:
             return None
-        return math.remainder(yaw_j_rad - yaw_i_rad + self.offset_rad, math.tau)
+        return relative_yaw_now(yaw_i_rad, yaw_j_rad, self.offset_rad)
 
     def _add(
         self,
@@ -98,11 +124,7 @@ class RelativeYawEdge:
         self._update(yaw_offset(own[2], peer[2], own[1], peer[1]))
 
     def _update(self, offset: float) -> None:
-        c, s = math.cos(offset), math.sin(offset)
-        if self.offset_rad is None:
-            self._cos, self._sin = c, s
-        else:
-            self._cos += self.gain * (c - self._cos)
-            self._sin += self.gain * (s - self._sin)
-        self.offset_rad = math.atan2(self._sin, self._cos)
+        self._cos, self._sin, self.offset_rad = filter_offset(
+            self._cos, self._sin, self.offset_rad is None, offset, self.gain
+        )
         self.pairs += 1

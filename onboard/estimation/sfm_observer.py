@@ -33,7 +33,6 @@ capture latency; at convergence the prediction is exact, so it adds no bias.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, field
 
 Vec3 = tuple[float, float, float]
@@ -128,23 +127,104 @@ def observer_rates(
     return d_beta_hat, d_chi_hat
 
 
+def observer_step(
+    beta_hat: Vec3,
+    chi_hat: float,
+    beta: Vec3,
+    u_ij: Vec3,
+    w_i: float,
+    dt: float,
+    alpha: float = ALPHA,
+    h_other: float = H_OTHER,
+    h_floor: float = H_FLOOR,
+    gate: float = 1.0,
+) -> tuple[Vec3, float, Vec3, float, float, float]:
+    """One explicit-Euler step of the observer (eq. 8) and of the predicted bearing (eq. 7).
+
+    ``beta`` is the measured bearing predicted to the step's start. Returns ``(betahat,
+    chihat, beta)`` after the step, ``|xi|^2`` at its start (the integrand of eq. 10),
+    ``chihat'`` (:func:`observer_rates`) and the model rate ``-chihat^2 u_ij^T beta`` after it
+    (to carry ``chihat`` forward, :meth:`SfmEdge.chi_at`)."""
+    d_bh, d_chi = observer_rates(beta_hat, chi_hat, beta, u_ij, w_i, alpha, h_other, h_floor, gate)
+    x0, x1, x2 = beta_hat[0] - beta[0], beta_hat[1] - beta[1], beta_hat[2] - beta[2]
+    xi_sq = x0 * x0 + x1 * x1 + x2 * x2
+    beta_new = predict_bearing(beta, chi_hat, u_ij, w_i, dt)
+    beta_hat_new = (
+        beta_hat[0] + dt * d_bh[0],
+        beta_hat[1] + dt * d_bh[1],
+        beta_hat[2] + dt * d_bh[2],
+    )
+    chi_new = chi_hat + dt * d_chi
+    ub = u_ij[0] * beta_new[0] + u_ij[1] * beta_new[1] + u_ij[2] * beta_new[2]
+    return beta_hat_new, chi_new, beta_new, xi_sq, d_chi, -chi_new * chi_new * ub
+
+
+def e_fold_increment(dt: float, gate: float, alpha: float, lam: float) -> float:
+    """``dt sqrt(g alpha lambda)``: the e-foldings one step gives the critically damped error
+    pair of the SVD-shaped observer (:attr:`SfmEdge.e_folds`)."""
+    return dt * math.sqrt(gate * alpha * lam)
+
+
+def window_add(
+    times: list[float],
+    values: list[float],
+    start: int,
+    count: int,
+    integral: float,
+    t_s: float,
+    value: float,
+    dt: float,
+    window_s: float,
+) -> tuple[int, int, float, float]:
+    """Add ``value`` held over ``(t_s - dt, t_s]`` to the window integral of eq. 10.
+
+    The samples live in a ring buffer ``times``/``values`` (lists or arrays of one capacity,
+    written in place) from index ``start``, ``count`` of them; samples at or before ``t_s -
+    window_s`` leave it. A full buffer forgets its oldest sample first (size it for the
+    window). Returns ``(start, count, integral, average)`` with ``average = max(integral, 0)
+    / window_s``, exact for piecewise constant samples and any step sizes."""
+    cap = len(times)
+    if count == cap:
+        integral -= values[start]
+        start = (start + 1) % cap
+        count -= 1
+    idx = (start + count) % cap
+    times[idx] = t_s
+    values[idx] = value * dt
+    count += 1
+    integral += value * dt
+    horizon = t_s - window_s
+    while count > 0 and times[start] <= horizon:
+        integral -= values[start]
+        start = (start + 1) % cap
+        count -= 1
+    return start, count, integral, max(integral, 0.0) / window_s
+
+
 @dataclass(slots=True)
 class WindowAverage:
-    """``(1/T) int_{t-T}^{t} y(tau) dtau`` of a sampled signal (eq. 10), exact for piecewise
-    constant samples, with any step sizes. O(1) amortized per sample."""
+    """``(1/T) int_{t-T}^{t} y(tau) dtau`` of a sampled signal (eq. 10, :func:`window_add`),
+    exact for piecewise constant samples, with any step sizes. O(1) amortized per sample."""
 
     window_s: float = 1.0
-    _samples: deque[tuple[float, float]] = field(default_factory=deque)
+    _times: list[float] = field(default_factory=lambda: [0.0] * 64)
+    _values: list[float] = field(default_factory=lambda: [0.0] * 64)
+    _start: int = 0
+    _count: int = 0
     _integral: float = 0.0
 
     def add(self, t_s: float, value: float, dt: float) -> float:
         """Add ``value`` held over ``(t_s - dt, t_s]`` and return the current window average."""
-        self._samples.append((t_s, value * dt))
-        self._integral += value * dt
-        horizon = t_s - self.window_s
-        while self._samples and self._samples[0][0] <= horizon:
-            self._integral -= self._samples.popleft()[1]
-        return self.value
+        if self._count == len(self._times):  # full: the window holds more samples, grow
+            order = [(self._start + m) % self._count for m in range(self._count)]
+            self._times = [self._times[m] for m in order] + [0.0] * self._count
+            self._values = [self._values[m] for m in order] + [0.0] * self._count
+            self._start = 0
+        self._start, self._count, self._integral, avg = window_add(
+            self._times, self._values, self._start, self._count, self._integral,
+            t_s, value, dt, self.window_s,
+        )  # fmt: skip
+        return avg
 
     @property
     def value(self) -> float:
@@ -233,11 +313,11 @@ class SfmEdge:
             return
         self.excitation = excitation(beta, u_ij)
         self.gate = gate = excitation_gate(self.excitation, self.bias_speed_m_s)
-        d_bh, d_chi = observer_rates(
-            beta_hat, self.chi_hat, beta, u_ij, w_i, self.alpha, self.h_other, self.h_floor, gate
-        )
-        x0, x1, x2 = beta_hat[0] - beta[0], beta_hat[1] - beta[1], beta_hat[2] - beta[2]
-        self.e_folds += dt * math.sqrt(gate * self.alpha * self.excitation)
+        beta_hat_new, chi_new, beta_new, xi_sq, d_chi, chi_rate = observer_step(
+            beta_hat, self.chi_hat, beta, u_ij, w_i, dt,
+            self.alpha, self.h_other, self.h_floor, gate,
+        )  # fmt: skip
+        self.e_folds += e_fold_increment(dt, gate, self.alpha, self.excitation)
         if self.folds_forget_s > 0.0:
             self.e_folds *= math.exp(-dt / self.folds_forget_s)
         if self.wander_window is not None and self.chi_hat > 0.0:
@@ -250,17 +330,9 @@ class SfmEdge:
             self.wander = abs(net) * up.window_s
             if self.wander > self.wander_max:
                 self.e_folds = min(self.e_folds, self.folds_cap)
-        self.e_index = self.window.add(t_s, x0 * x0 + x1 * x1 + x2 * x2, dt)
-        self.beta_pred = beta = predict_bearing(beta, self.chi_hat, u_ij, w_i, dt)
-        self.beta_hat = (
-            beta_hat[0] + dt * d_bh[0],
-            beta_hat[1] + dt * d_bh[1],
-            beta_hat[2] + dt * d_bh[2],
-        )
-        self.chi_hat += dt * d_chi
+        self.e_index = self.window.add(t_s, xi_sq, dt)
+        self.beta_pred = beta_new
+        self.beta_hat = beta_hat_new
+        self.chi_hat = chi_new
         self.t_s = t_s
-        self.chi_rate = (
-            -self.chi_hat
-            * self.chi_hat
-            * (u_ij[0] * beta[0] + u_ij[1] * beta[1] + u_ij[2] * beta[2])
-        )
+        self.chi_rate = chi_rate

@@ -19,6 +19,8 @@ from bisect import bisect_left, bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from onboard.estimation.angles import wrap_rad
+
 Sample = tuple[float, ...]
 
 
@@ -80,14 +82,28 @@ class SignalHistory:
             return None
         if k == len(ts) or ts[k - 1] == t_s:
             return self._x[k - 1]
-        t0, t1 = ts[k - 1], ts[k]
-        a = (t_s - t0) / (t1 - t0)
+        a = interpolation_weight(t_s, ts[k - 1], ts[k])
         x0, x1 = self._x[k - 1], self._x[k]
-        out = [u + a * (v - u) for u, v in zip(x0, x1, strict=True)]
+        out = [u + a * (v - u) for u, v in zip(x0, x1, strict=True)]  # lerp, inline: hot
         if self.angle_index is not None:
             m = self.angle_index
-            out[m] = x0[m] + a * math.remainder(x1[m] - x0[m], math.tau)
+            out[m] = lerp_angle(x0[m], x1[m], a)
         return tuple(out)
+
+
+def interpolation_weight(t_s: float, t0_s: float, t1_s: float) -> float:
+    """Weight ``(t - t0) / (t1 - t0)`` of the later sample in a linear interpolation."""
+    return (t_s - t0_s) / (t1_s - t0_s)
+
+
+def lerp(x0: float, x1: float, a: float) -> float:
+    """``x0 + a (x1 - x0)``."""
+    return x0 + a * (x1 - x0)
+
+
+def lerp_angle(x0_rad: float, x1_rad: float, a: float) -> float:
+    """Linear interpolation of an angle along the short arc (not wrapped)."""
+    return x0_rad + a * wrap_rad(x1_rad - x0_rad)
 
 
 def step_times(

@@ -24,7 +24,7 @@ import numpy as np
 
 from messages import mavlink as mv
 from sim.autopilot.link import LinkCounters
-from sim.autopilot.params import ParamTable
+from sim.autopilot.params import PARAM_TYPE_REAL32, ParamTable
 from sim.autopilot.state import LANDED_STATE, AutopilotOptions, Home, Phase
 from sim.autopilot.telemetry import STREAM_IDS, STREAM_NAMES, Telemetry
 from sim.world import Observation, World
@@ -500,14 +500,28 @@ class Autopilot(Telemetry):
             self.send(self._param_value(found[0]))
 
     def _on_param_set(self, msg: Any) -> None:
-        """Apply and echo the new value; an invalid one is refused by echoing the old value."""
+        """Apply and echo the new value; an invalid one (wrong type, non-finite, outside the
+        documented range, :mod:`sim.autopilot.params`) is refused: the table is unchanged, a
+        STATUSTEXT names the range, and PARAM_VALUE carries the current value, as the parameter
+        protocol asks of a failed set."""
         if not self._for_me(msg.target_system, msg.target_component):
             return
         name = _param_name(msg.param_id)
         found = self.params.by_name(name)
         if found is None:
             return
-        self.params.set_from_wire(name, float(msg.param_value), int(msg.param_type))
+        value = float(msg.param_value)
+        if self.params.set_from_wire(name, value, int(msg.param_type)) is None:
+            self.counters.params_refused += 1
+            p = found[1]
+            shown = (
+                f"{value:g}"
+                if p.param_type == PARAM_TYPE_REAL32 or not self.params.bytewise
+                else "value"
+            )
+            self.statustext(
+                mv_severity("warning"), f"{name}: {shown} out of range {p.range_text()}"
+            )
         self.send(self._param_value(found[0]))
 
     def _on_ping(self, msg: Any) -> None:

@@ -4,8 +4,14 @@
   numbers, optional signing) and parses incoming bytes with one parser per peer, classifying
   everything that is not a valid message into :class:`LinkCounters` instead of raising.
 * :class:`UdpLink` — PX4 style: one socket, sends to fixed destinations (14540+i, 14550)
-  and to every address a valid packet came from.
-* :class:`TcpLink` — ArduPilot SITL style: a TCP server; every accepted connection is a peer.
+  and to the addresses valid packets came from (at most :data:`MAX_UDP_PEERS`, admitted at
+  most :data:`NEW_PEERS_PER_S` a second).
+* :class:`TcpLink` — ArduPilot SITL style: a TCP server; every accepted connection is a peer
+  (at most :data:`MAX_TCP_CONNS`).
+
+Every table a sender can grow is bounded (issue 23): parsers (:data:`MAX_PARSERS`, least
+recently used evicted), UDP peers, TCP connections; running out of file descriptors in
+``accept`` closes the newcomer instead of ending the loop.
 
 Links are non-blocking and are driven by the server's ``selectors`` loop: they register their
 sockets with a callback and never block.
@@ -13,9 +19,12 @@ sockets with a callback and never block.
 
 from __future__ import annotations
 
+import errno
+import os
 import selectors
 import socket
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from types import ModuleType
@@ -27,6 +36,17 @@ from sim.autopilot.signing import enable_signing
 PEER_TIMEOUT_S = 30.0
 """A learned UDP peer that stays silent this long (wall time) is no longer sent to."""
 MAX_TCP_BACKLOG_BYTES = 1 << 20
+MAX_PARSERS = 64
+"""Per-sender parsers kept per vehicle; the least recently used goes first. A UDP parser holds
+nothing between datagrams (a partial frame is dropped), so evicting one loses nothing."""
+MAX_UDP_PEERS = 8
+"""Learned UDP addresses that receive telemetry, per vehicle, besides the fixed destinations
+(a real PX4 link answers one address; 8 covers a GCS, an API client and tools)."""
+NEW_PEERS_PER_S = 2.0
+"""Rate at which new UDP peers are admitted (token bucket, burst :data:`NEW_PEERS_BURST`)."""
+NEW_PEERS_BURST = 4.0
+MAX_TCP_CONNS = 16
+"""Simultaneous TCP connections per vehicle; a further one is accepted and closed at once."""
 
 
 @dataclass
@@ -56,6 +76,17 @@ class LinkCounters:
     nan_commands: int = 0
     """Commands refused for a NaN where the real autopilot would crash (ArduCopter aborts on a
     NaN it converts to an integer or compares, e.g. ARM_DISARM's param 2)."""
+    params_refused: int = 0
+    """PARAM_SETs refused: wrong type, non-finite, or outside the documented range."""
+    peers_refused: int = 0
+    """UDP senders not made telemetry peers: the peer table was full or new peers came in
+    faster than :data:`NEW_PEERS_PER_S`."""
+    parsers_evicted: int = 0
+    """Per-sender parsers dropped, least recently used first (:data:`MAX_PARSERS`)."""
+    tcp_refused: int = 0
+    """TCP connections closed at once: :data:`MAX_TCP_CONNS` reached, or out of descriptors."""
+    intervals_refused: int = 0
+    """SET_MESSAGE_INTERVAL requests that would stop the HEARTBEAT (refused, DENIED)."""
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -91,7 +122,7 @@ class Codec:
         if signing_key is not None:
             enable_signing(self._tx, signing_key)
             self.verifier = SignatureVerifier(signing_key)
-        self._parsers: dict[Any, Any] = {}
+        self._parsers: OrderedDict[Any, Any] = OrderedDict()
         self.authenticated = False
         """Whether the last :meth:`parse` returned a correctly signed message (or, without
         signing, any valid one): only such a sender may become a peer."""
@@ -112,7 +143,16 @@ class Codec:
             p = self.dialect.MAVLink(_Sink(), srcSystem=self._tx.srcSystem, srcComponent=1)
             p.robust_parsing = True
             self._parsers[peer] = p
+            while len(self._parsers) > MAX_PARSERS:
+                self._parsers.popitem(last=False)
+                self.counters.parsers_evicted += 1
+        else:
+            self._parsers.move_to_end(peer)
         return p
+
+    @property
+    def parser_count(self) -> int:
+        return len(self._parsers)
 
     def forget(self, peer: Any) -> None:
         self._parsers.pop(peer, None)
@@ -209,6 +249,8 @@ class UdpLink:
         self.sock.setblocking(False)
         self.fixed = list(dict.fromkeys(tuple(d) for d in destinations))  # no duplicates
         self.peers: dict[tuple[str, int], float] = {}
+        self._tokens = NEW_PEERS_BURST
+        self._tokens_t = clock()
         self._selector: selectors.BaseSelector | None = None
 
     @property
@@ -234,20 +276,38 @@ class UdpLink:
                 continue
             msgs = self.codec.parse(addr, data, datagram=True)
             if self.codec.authenticated:  # never an unsigned or forged sender
-                self.peers[addr] = self._clock()
+                self._heard(addr)
             for m in msgs:
                 self.on_message(m)
 
-    def send(self, msg: Any) -> None:
-        buf = self.codec.pack(msg)
+    def _heard(self, addr: tuple[str, int]) -> None:
+        """A valid packet from ``addr``: refresh it, or admit it as a telemetry peer if there is
+        room and the admission rate allows (else count it in ``peers_refused``)."""
         now = self._clock()
-        dests = list(self.fixed)
+        if addr in self.peers:
+            self.peers[addr] = now
+            return
+        if addr in self.fixed:
+            return
+        self._expire(now)
+        self._tokens = min(NEW_PEERS_BURST, self._tokens + (now - self._tokens_t) * NEW_PEERS_PER_S)
+        self._tokens_t = now
+        if len(self.peers) >= MAX_UDP_PEERS or self._tokens < 1.0:
+            self.codec.counters.peers_refused += 1
+            return
+        self._tokens -= 1.0
+        self.peers[addr] = now
+
+    def _expire(self, now: float) -> None:
         for addr, heard in list(self.peers.items()):
             if now - heard > PEER_TIMEOUT_S:
                 del self.peers[addr]
                 self.codec.forget(addr)
-            elif addr not in dests:
-                dests.append(addr)
+
+    def send(self, msg: Any) -> None:
+        buf = self.codec.pack(msg)
+        self._expire(self._clock())
+        dests = self.fixed + [a for a in self.peers if a not in self.fixed]
         for d in dests:
             try:
                 self.sock.sendto(buf, d)
@@ -275,6 +335,7 @@ class TcpLink:
         self.sock.listen(8)
         self.sock.setblocking(False)
         self.conns: dict[socket.socket, bytearray] = {}
+        self._reserve: int | None = _open_reserve()
         self._selector: selectors.BaseSelector | None = None
 
     @property
@@ -293,6 +354,15 @@ class TcpLink:
         try:
             conn, _addr = self.sock.accept()
         except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:  # EMFILE/ENFILE/ENOBUFS, ECONNABORTED: never end the loop
+            self.codec.counters.tcp_refused += 1
+            if exc.errno in (errno.EMFILE, errno.ENFILE):
+                self._shed_one()
+            return
+        if len(self.conns) >= MAX_TCP_CONNS:
+            self.codec.counters.tcp_refused += 1
+            conn.close()
             return
         conn.setblocking(False)
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -369,7 +439,23 @@ class TcpLink:
                 pass
         conn.close()
 
+    def _shed_one(self) -> None:
+        """Out of descriptors: free the reserved one, accept the waiting connection and close
+        it (else the listening socket stays readable and the loop spins), then re-reserve."""
+        if self._reserve is not None:
+            os.close(self._reserve)
+            self._reserve = None
+        try:
+            conn, _ = self.sock.accept()
+            conn.close()
+        except OSError:
+            pass
+        self._reserve = _open_reserve()
+
     def close(self) -> None:
+        if self._reserve is not None:
+            os.close(self._reserve)
+            self._reserve = None
         for conn in list(self.conns):
             self._drop(conn)
         if self._selector is not None:
@@ -378,3 +464,11 @@ class TcpLink:
             except (KeyError, ValueError):
                 pass
         self.sock.close()
+
+
+def _open_reserve() -> int | None:
+    """One spare descriptor, given back to let ``accept`` shed a connection at EMFILE."""
+    try:
+        return os.open(os.devnull, os.O_RDONLY)
+    except OSError:
+        return None

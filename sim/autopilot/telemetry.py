@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from messages import mavlink as mv
+from sim.autopilot.link import LinkCounters
 from sim.autopilot.state import LANDED_STATE, AutopilotOptions, Phase
 from sim.world import Observation
 
@@ -32,6 +33,12 @@ DEFAULT_STREAM_HZ: dict[str, float] = {
     "BATTERY_STATUS": 0.5,
 }
 """Stream rates (Hz of simulation time) at boot; SET_MESSAGE_INTERVAL changes them."""
+MIN_HEARTBEAT_HZ = 1.0
+"""SET_MESSAGE_INTERVAL may not slow HEARTBEAT below this or stop it (DENIED): clients mark a
+vehicle lost after a few silent seconds (MAVSDK: 3 s), so a slower heartbeat silences it."""
+MAX_STREAM_HZ = 100.0
+"""Fastest stream (one message per 10 ms world step): a request for more is clamped, so one
+SET_MESSAGE_INTERVAL(1 us) or REQUEST_DATA_STREAM(65535 Hz) cannot flood the links."""
 
 STREAM_IDS: dict[str, int] = {
     "HEARTBEAT": 0,
@@ -71,6 +78,7 @@ class Telemetry:
     next_due_s: dict[str, float]
     _next_any_s: float
     send: Callable[[Any], None]
+    counters: LinkCounters
 
     def init_streams(self, on: bool) -> None:
         """Default streams (or only HEARTBEAT), phase-staggered across vehicles."""
@@ -107,6 +115,9 @@ class Telemetry:
         name = STREAM_NAMES.get(int(msg_id))
         if name is None or name == "AUTOPILOT_VERSION":
             return mv.RESULT_UNSUPPORTED
+        if name == "HEARTBEAT" and (interval_us < 0 or interval_us > 1e6 / MIN_HEARTBEAT_HZ):
+            self.counters.intervals_refused += 1  # a silent vehicle is a lost vehicle
+            return mv.RESULT_DENIED
         if interval_us < 0:
             self.set_rate(name, 0.0)
         else:
@@ -115,6 +126,8 @@ class Telemetry:
         return mv.RESULT_ACCEPTED
 
     def set_rate(self, name: str, hz: float) -> None:
+        """Stream ``name`` at ``hz`` (at most :data:`MAX_STREAM_HZ`); ``hz <= 0`` stops it."""
+        hz = min(hz, MAX_STREAM_HZ)
         if hz <= 0.0:
             self.intervals_s.pop(name, None)
             self.next_due_s.pop(name, None)

@@ -6,7 +6,7 @@ A name is resolved in this order:
    ``loss`` (probability in [0, 1)), ``latency`` (s);
 2. a field of :class:`sim.runner.RunnerConfig` (``dt_s``, ``camera_rate_hz``,
    ``velocity_noise_m_s``, ``tau_v_s``, ``fov_deg``, ...);
-3. a field of :class:`onboard.agent.AgentConfig` (gains: ``k_formation``, ``nu_star``,
+3. a field of :class:`onboard.core.config.AgentConfig` (gains: ``k_formation``, ``nu_star``,
    ``consensus_k_p``, ``rigidity_eigen``, ...), the same for every vehicle; ``agent.NAME``
    forces this (e.g. ``agent.fov_deg`` for the cameras the rigidity layer models).
 """
@@ -53,9 +53,9 @@ def _runner_fields() -> set[str]:
 
 
 def _agent_fields() -> set[str]:
-    from onboard.agent import AgentConfig
+    from onboard.core.config import field_types
 
-    return set(AgentConfig.__struct_fields__) - set(AGENT_FIXED)
+    return set(field_types()) - set(AGENT_FIXED)
 
 
 def target(name: str) -> tuple[str, str]:
@@ -72,15 +72,17 @@ def target(name: str) -> tuple[str, str]:
         return "agent", name
     raise ValueError(
         f"unknown sweep parameter {name!r}: use one of {', '.join(ALIASES)}, a RunnerConfig "
-        "field (sim/runner.py) or an AgentConfig field (onboard/agent.py); see docs/sweep.md"
+        "field (sim/runner.py) or an AgentConfig field (onboard/core/config.py); see docs/sweep.md"
     )
 
 
 def _hint(where: str, field: str) -> object:
-    from onboard.agent import AgentConfig
+    from onboard.core.config import field_types
     from sim.runner import RunnerConfig
 
-    return typing.get_type_hints(AgentConfig if where == "agent" else RunnerConfig)[field]
+    if where == "agent":
+        return field_types()[field]
+    return typing.get_type_hints(RunnerConfig)[field]
 
 
 def normalize(name: str, value: ParamValue) -> ParamValue:

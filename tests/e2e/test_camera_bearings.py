@@ -115,7 +115,7 @@ def test_agents_fly_on_bearings_from_rendered_images(tmp_path: Path, wait_for) -
 
         def shared_after_takeoff() -> bool:
             with rec.lock:
-                senders = {m.sender for m in rec.shares if m.stamp_s > t_flying and m.targets}
+                senders = {m.sender for m in rec.shares if m.stamp_s > t_flying and m.bearings}
             return senders == set(range(N))
 
         wait_for(shared_after_takeoff, 15.0, "every agent core to share camera bearings", ev)
@@ -127,7 +127,7 @@ def test_agents_fly_on_bearings_from_rendered_images(tmp_path: Path, wait_for) -
         errors = []
         for m in shares:
             own = rec.true_state(m.sender, m.stamp_s)
-            for target, beta in zip(m.targets, m.beta_body, strict=True):
+            for target, beta in ((b.target, b.beta_body) for b in m.bearings):
                 other = rec.true_state(target, m.stamp_s)
                 if own is None or other is None:
                     continue

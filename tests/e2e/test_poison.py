@@ -57,8 +57,7 @@ def test_one_packet_of_poison_each_leaves_the_team_flying(fleet, wait_for):
         (f"bf/{name}/0/camera/bearings", _raw("camera_bearings", 0, t + 1e6, targets=[1],
                                               beta_body=[[1.0, 0.0, 0.0]])),
         (f"bf/{name}/1/peer/consensus", _raw("peer.consensus", 1, t,
-                                             names=[f"n{k}" for k in range(4000)],
-                                             x=[[0.0]] * 4000, z=[[]] * 4000)),
+                                             states=[[f"n{k}", [0.0], []] for k in range(4000)])),
     ]  # fmt: skip
     for k, data in poison:
         ev.session.put(k, data)

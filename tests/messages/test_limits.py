@@ -12,14 +12,18 @@ from messages.codec import SCHEMA_VERSION, MessageError, decode, encode
 from messages.limits import POSITION_MAX_M, SPEED_MAX_M_S
 from messages.peer import (
     BearingShare,
+    ConsensusEntry,
     ConsensusState,
+    EdgeExcitation,
     ExcitationTable,
     LocalizationState,
     MotionShare,
     PeerPayload,
+    SfmEdgeEstimate,
     SfmEstimate,
+    TargetBearing,
 )
-from messages.rigidity import RigidityEigenShare
+from messages.rigidity import AngleLocalizationShare, GradientBlock, RigidityEigenShare
 from messages.sim import SimClock, Truth
 
 
@@ -46,28 +50,50 @@ LOCALIZATION = {"p_hat_ned": [1.0, 2.0, -3.0], "yaw_hat_rad": 0.2}
         ("peer.motion", {**MOTION, "stamp_s": 1e300}),
         ("peer.motion", {**MOTION, "seq": -1}),
         ("peer.motion", {**MOTION, "sender": -4}),
-        ("peer.bearings", {"yaw_rad": 0.0, "targets": [0], "beta_body": [[1e200, 0.0, 0.0]]}),
+        ("peer.bearings", {"yaw_rad": 0.0, "bearings": [[0, [1e200, 0.0, 0.0]]]}),
+        ("peer.bearings", {"yaw_rad": 0.0, "bearings": [[70_000, [1.0, 0.0, 0.0]]]}),
+        ("peer.sfm", {"edges": [[0, 1e300, 0.0, 0.0, 0.0]]}),
+        ("peer.excitation", {"entries": [[0, 1, 1e300, 10.0]]}),
+        ("peer.excitation", {"entries": [[0, 1, 1.0, 1e300]]}),
+        ("peer.consensus", {"states": [["e_index", [1e300], [0.0]]]}),
+        ("peer.consensus", {"states": [["n" * 1000, [1.0], [0.0]]]}),
+        ("peer.consensus", {"states": [["a", [1.0], []]] * 45_000}),
         (
-            "peer.sfm",
-            {"peers": [0], "chi_hat_inv_m": [1e300], "excitation": [0.0], "e_index": [0.0]},
+            "peer.angle_localization",
+            {
+                "p_hat_ned": [0.0, 0.0, 0.0],
+                "yaw_hat_rad": 0.0,
+                "yaw_known": True,
+                "blocks": [[1, [1e300, 0.0, 0.0]]],
+            },
         ),
-        (
-            "peer.excitation",
-            {"first": [0], "second": [1], "excitation": [1e300], "stamps_s": [10.0]},
-        ),
-        (
-            "peer.excitation",
-            {"first": [0], "second": [1], "excitation": [1.0], "stamps_s": [1e300]},
-        ),
-        ("peer.consensus", {"names": ["e_index"], "x": [[1e300]], "z": [[0.0]]}),
-        ("peer.consensus", {"names": ["n" * 1000], "x": [[1.0]], "z": [[0.0]]}),
-        ("peer.consensus", {"names": ["a"] * 45_000, "x": [[1.0]] * 45_000, "z": [[]] * 45_000}),
     ],
 )
 def test_huge_finite_values_are_out_of_range(tag, fields):
     with pytest.raises(MessageError) as info:
         decode(_raw(tag, **fields), PeerPayload)
     assert info.value.reason == "out_of_range", info.value
+
+
+@pytest.mark.parametrize(
+    ("tag", "fields"),
+    [
+        ("peer.bearings", {"yaw_rad": 0.0, "bearings": [[0]]}),  # a target without its bearing
+        ("peer.bearings", {"yaw_rad": 0.0, "bearings": [[0, [1.0, 0.0, 0.0], 5]]}),
+        ("peer.sfm", {"edges": [[0, 0.5, 1.0, 0.0]]}),  # no e-foldings
+        ("peer.excitation", {"entries": [[0, 1, 1.0]]}),  # no stamp
+        ("peer.consensus", {"states": [["e_index", [1.0]]]}),  # no z
+        ("peer.consensus", {"states": [[7, [1.0], []]]}),  # a name that is not a string
+        ("peer.angle_localization", {"p_hat_ned": [0.0, 0.0, 0.0], "yaw_hat_rad": 0.0,
+                                     "yaw_known": True, "blocks": [[1]]}),
+    ],
+)  # fmt: skip
+def test_a_half_entry_is_malformed_on_decode(tag, fields):
+    """Entries replace parallel lists (issue 21): one of the wrong arity or types never reaches
+    a receiver, which therefore checks no lengths."""
+    with pytest.raises(MessageError) as info:
+        decode(_raw(tag, **fields), PeerPayload)
+    assert info.value.reason == "malformed", info.value
 
 
 def test_nan_is_still_nonfinite_and_not_out_of_range():
@@ -91,12 +117,14 @@ def test_what_a_flying_team_sends_is_accepted():
         MotionShare(sender=2, seq=9, stamp_s=1.7e9, v_body=(fast, -3.0, 1.0), yaw_rate_rad_s=4.0,
                     yaw_rad=-3.1),
         LocalizationState(sender=2, stamp_s=0.0, p_hat_ned=(5e4, -5e4, -100.0), yaw_hat_rad=3.0),
-        BearingShare(sender=2, yaw_rad=0.1, targets=[0, 1], beta_body=[(1.0, 0.0, 0.0)] * 2),
-        SfmEstimate(sender=2, peers=[3], chi_hat_inv_m=[-0.01], excitation=[40.0],
-                    e_index=[1e-5], e_folds=[1e4]),
-        ExcitationTable(sender=2, first=[2], second=[3], excitation=[0.0], stamps_s=[12.5]),
-        ConsensusState(sender=2, names=["e_index", "p_bar"], x=[[0.1], [1.0, 2.0, -3.0]],
-                       z=[[0.0], [0.0, 0.0, 0.0]]),
+        BearingShare(sender=2, yaw_rad=0.1, bearings=[TargetBearing(0, (1.0, 0.0, 0.0)),
+                                                      TargetBearing(1, (0.0, 1.0, 0.0))]),
+        SfmEstimate(sender=2, edges=[SfmEdgeEstimate(3, -0.01, 40.0, 1e-5, 1e4)]),
+        ExcitationTable(sender=2, entries=[EdgeExcitation(2, 3, 0.0, 12.5)]),
+        ConsensusState(sender=2, states=[ConsensusEntry("e_index", [0.1], [0.0]),
+                                         ConsensusEntry("p_bar", [1.0, 2.0, -3.0], [0.0] * 3)]),
+        AngleLocalizationShare(sender=2, p_hat_ned=(1.0, 2.0, -3.0), yaw_hat_rad=0.5,
+                               yaw_known=True, blocks=[GradientBlock(0, (0.1, -0.2, 0.3))]),
     ]  # fmt: skip
     for p in payloads:
         assert decode(encode(p), PeerPayload) == p

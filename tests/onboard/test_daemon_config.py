@@ -38,13 +38,13 @@ def test_defaults_and_urls(tmp_path):
     assert fleet.system_id(2) == 3  # MAVLink system id = agent id + 1
     assert fleet.zenoh_port(0) == 7448 and fleet.sim_zenoh_port() == 7447
     cfg = agent_config(fleet, 1)
-    assert cfg.agent_id == 1 and cfg.n_agents == 3
-    assert len(cfg.edges) == 6  # no [[edge]], no [camera]: everyone sees everyone
+    assert cfg.graph.agent_id == 1 and cfg.graph.n_agents == 3
+    assert len(cfg.graph.edges) == 6  # no [[edge]], no [camera]: everyone sees everyone
     # the prior is the plan scaled by prior_scale (0.6) about its centroid, not any truth
     centroid = (2.0, 1.0, -16.0 / 3.0)
     plan0 = (0.0, 0.0, -5.0)
     expected = tuple(c + 0.6 * (p - c) for p, c in zip(plan0, centroid, strict=True))
-    assert cfg.p_hat0_ned[0] == pytest.approx(expected, abs=1e-12)
+    assert cfg.graph.p_hat0_ned[0] == pytest.approx(expected, abs=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -124,9 +124,13 @@ def test_rigidity_section_reaches_the_core_and_refuses_a_safe_level_above_the_pl
               'lambda_min = 0.005\n', FORMATION4)
     )  # fmt: skip
     cfg = agent_config(fleet, 0)
-    assert cfg.rigidity_maintenance and cfg.rigidity_scale_from_sfm
-    assert len(cfg.rigidity_edges) == 12 and cfg.lambda_safe == 0.05 and cfg.fov_deg == 360.0
-    assert cfg.rigidity_period_s == 1.0 / 20.0
+    assert cfg.rigidity.rigidity_maintenance and cfg.rigidity.rigidity_scale_from_sfm
+    assert (
+        len(cfg.rigidity.rigidity_edges) == 12
+        and cfg.rigidity.lambda_safe == 0.05
+        and cfg.rigidity.fov_deg == 360.0
+    )
+    assert cfg.rigidity.rigidity_period_s == 1.0 / 20.0
     lam = planned_rigidity_eigenvalue(fleet.formation, fleet.config.rigidity)
     assert 0.05 < lam < 100.0
     # a safe level above the planned formation's eigenvalue would fight the formation
@@ -141,7 +145,7 @@ def test_rigidity_section_reaches_the_core_and_refuses_a_safe_level_above_the_pl
         load_fleet(write(tmp_path, f'formation = "formation.toml"\n{rig}'))
     # off by default: the core has no rigidity layer
     plain = agent_config(load_fleet(write(tmp_path, 'formation = "formation.toml"\n')), 0)
-    assert not plain.rigidity_maintenance and plain.rigidity_edges == ()
+    assert not plain.rigidity.rigidity_maintenance and plain.rigidity.rigidity_edges == ()
 
 
 def test_zenoh_settings_on_loopback_by_default(tmp_path):
@@ -158,6 +162,7 @@ def test_zenoh_settings_for_a_team_network(tmp_path):
         'connect = ["tcp/192.168.1.20:7448"]\nmulticast_scouting = true\n'
         'config_file = "zenoh.json5"\n'
     )
+    (tmp_path / "zenoh.json5").write_text("{}\n")  # a missing file is a ConfigError (issue 23)
     fleet = load_fleet(write(tmp_path, text))
     s = fleet.zenoh_settings(2)
     assert list(s.listen) == ["tcp/0.0.0.0:7450"]  # the wildcard covers loopback
@@ -195,7 +200,7 @@ def test_an_agent_listening_on_every_interface_is_reachable_off_loopback(tmp_pat
 
 def test_sfm_section_reaches_the_core(tmp_path):
     default = agent_config(load_fleet(write(tmp_path, 'formation = "formation.toml"\n')), 0)
-    assert default.sfm_bias_speed_m_s == 0.1 and default.sfm_wander_max == 0.02
+    assert default.scale.sfm_bias_speed_m_s == 0.1 and default.scale.sfm_wander_max == 0.02
     off = 'formation = "formation.toml"\n[sfm]\nbias_speed_m_s = 0.0\nwander_max = 0.0\n'
     cfg = agent_config(load_fleet(write(tmp_path, off)), 1)
-    assert cfg.sfm_bias_speed_m_s == 0.0 and cfg.sfm_wander_max == 0.0
+    assert cfg.scale.sfm_bias_speed_m_s == 0.0 and cfg.scale.sfm_wander_max == 0.0

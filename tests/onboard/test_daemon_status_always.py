@@ -154,7 +154,7 @@ def test_implausible_autopilot_telemetry_reaches_the_status_as_alarm_and_count(t
 
 
 def test_publishable_status_keeps_a_healthy_status_as_it_is(tmp_path):
-    from onboard.agent import AgentCore
+    from onboard.core.agent import AgentCore
     from onboard.daemon.loop import agent_config
 
     path = write_demo_files(tmp_path, plan_formation(3, seed=1), DemoPorts(zenoh=1, mavlink=2,

@@ -20,7 +20,9 @@ from messages.agent import AgentStatus, BearingMeasurement, OwnMeasurements
 from messages.codec import MessageError, Payload, decode, encode
 from messages.peer import PeerPayload
 from messages.sim import CameraBearings, SimClock
-from onboard.agent import CONSENSUS_NAMES, AgentConfig, AgentCore
+from onboard.core.agent import AgentCore
+from onboard.core.config import AgentConfig, build_config
+from onboard.core.scale import CONSENSUS_NAMES
 from onboard.daemon.bearings import SimCameraSource
 from onboard.daemon.clock import SimClockFollower, sim_clock_handler
 from onboard.daemon.peers import DropCounter
@@ -46,7 +48,7 @@ FUZZ = settings(
 def _configs() -> list[AgentConfig]:
     beta, _ = bearings_body(P0, YAW0, list(EDGES))
     return [
-        AgentConfig(
+        build_config(
             agent_id=i,
             n_agents=N,
             edges=EDGES,
@@ -201,20 +203,21 @@ def random_payload(draw: st.DrawFn, corpus: dict[str, list[bytes]]) -> bytes:
 # ------------------------------------------------------------------ invariants
 def _check_invariants(c: AgentCore, setpoint: Any) -> None:
     loc = c.localization
-    numbers = [*loc.p_hat_ned, loc.yaw_hat_rad, c.lambda_bar, c.e_index, c.w_l, c.dlam_dwl]
-    numbers += [*c.p_bar, *c.u_cmd, *setpoint.v_body, setpoint.yaw_rate_rad_s]
-    numbers += [e.chi_hat for e in c.sfm.values()]
-    r = c.rigidity
-    assert r is not None
+    s, r, ctl = c.scale, c.rigidity, c.controller
+    assert s is not None and r is not None and ctl is not None
+    numbers = [*loc.p_hat_ned, loc.yaw_hat_rad, c.lambda_bar, c.e_index, c.w_l, s.dlam_dwl]
+    numbers += [*s.p_bar, *ctl.u_cmd, *setpoint.v_body, setpoint.yaw_rate_rad_s]
+    numbers += [e.chi_hat for e in s.sfm.values()]
     numbers += [*r.loc.p_hat_ned, *r.u_rigidity, r.w_rigidity]
     numbers += [] if r.lambda_hat is None else [r.lambda_hat]
     assert all(math.isfinite(x) for x in numbers), numbers
-    assert set(c._cons_in) <= CONSENSUS_NAMES
-    assert all(set(d) <= set(c.neighbours) for d in c._cons_in.values())
-    assert set(c._lam_table) <= c._known_edges
-    for table in (c._motion, c._loc, c._beta_in, c._sfm_in, c._heard, r._loc_in, r._eig_in):
+    assert set(s.cons_in) <= CONSENSUS_NAMES
+    assert all(set(d) <= set(c.neighbours) for d in s.cons_in.values())
+    assert set(s.lam_table) <= s.known_edges
+    tables = [c.peers.all(kind) for kind in c.peers.routes]
+    for table in (*tables, c.bearings.beta_in, s.sfm_in, c.peers.heard):
         assert set(table) <= set(c.neighbours)
-    assert all(len(h) <= 2000 for h in (c._own_hist, *c._motion_hist.values()))
+    assert all(len(h) <= 2000 for h in (c.bearings.own_hist, *s.motion_hist.values()))
     status = c.status()
     assert decode(encode(status), AgentStatus) == status  # publishable: finite, encodable
 

@@ -11,14 +11,19 @@ from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
 from messages.peer import (
     BearingShare,
+    ConsensusEntry,
     ConsensusState,
+    EdgeExcitation,
     ExcitationTable,
     MotionShare,
     PeerPayload,
+    SfmEdgeEstimate,
     SfmEstimate,
+    TargetBearing,
 )
 from messages.sim import CameraBearings
-from onboard.agent import AgentConfig, AgentCore
+from onboard.core.agent import AgentCore
+from onboard.core.config import build_config
 from onboard.daemon.bearings import SimCameraSource
 from onboard.daemon.peers import DropCounter
 from onboard.estimation.sfm_observer import predict_bearing
@@ -29,7 +34,7 @@ P0 = ((0.0, 0.0, -2.0), (2.5, 0.5, -2.6), (0.5, 2.6, -1.5))
 
 def core(agent_id: int = 1, **kw) -> AgentCore:
     return AgentCore(
-        AgentConfig(agent_id=agent_id, n_agents=3, edges=TRIANGLE, p_hat0_ned=P0, seed=1, **kw)
+        build_config(agent_id=agent_id, n_agents=3, edges=TRIANGLE, p_hat0_ned=P0, seed=1, **kw)
     )
 
 
@@ -58,16 +63,15 @@ def test_a_received_sfm_estimate_expires():
     c = core(1)  # edge (0, 1) is run by agent 0, which shares chi_hat with agent 1
     c.step(1.0, own(1.0))
     est = SfmEstimate(
-        sender=0, seq=1, stamp_s=1.0, peers=[1], chi_hat_inv_m=[0.25], excitation=[1.0],
-        e_index=[0.0], e_folds=[10.0],
-    )  # fmt: skip
+        sender=0, seq=1, stamp_s=1.0, edges=[SfmEdgeEstimate(1, 0.25, 1.0, 0.0, 10.0)]
+    )
     c.step(1.01, own(1.01), [wire(est)])
     assert c.chi_hat(0) == 0.25
     assert c.status().chi_hat_inv_m[0] == 0.25
-    c.step(1.0 + 2 * c.config.peer_timeout_s, own(1.0 + 2 * c.config.peer_timeout_s))
+    c.step(1.0 + 2 * c.config.safety.peer_timeout_s, own(1.0 + 2 * c.config.safety.peer_timeout_s))
     assert c.chi_hat(0) is None  # a silent neighbour's last distance is not kept forever
     assert 0 not in c.status().chi_hat_inv_m
-    assert c._received_e_folds(0) == 0.0 and not c.scale_converged()
+    assert c.scale.received_e_folds(0) == 0.0 and not c.scale_converged()
     assert all(math.isfinite(x) for x in c.status().p_hat_ned)
 
 
@@ -86,17 +90,17 @@ def test_one_future_stamped_peer_sample_does_not_freeze_peer_state():
     t = 1.0
     c.step(t, own(t), [wire(motion(2, t))])
     future = wire(motion(2, t + 1e6))
-    bearings = wire(BearingShare(sender=2, stamp_s=t + 1e6, yaw_rad=0.0, targets=[1],
-                                 beta_body=[(1.0, 0.0, 0.0)]))  # fmt: skip
-    table = wire(ExcitationTable(sender=2, stamp_s=t, first=[0], second=[2], excitation=[5.0],
-                                 stamps_s=[t + 1e6]))  # fmt: skip
+    bearings = wire(BearingShare(sender=2, stamp_s=t + 1e6, yaw_rad=0.0,
+                                 bearings=[TargetBearing(1, (1.0, 0.0, 0.0))]))  # fmt: skip
+    table = wire(ExcitationTable(sender=2, stamp_s=t,
+                                 entries=[EdgeExcitation(0, 2, 5.0, t + 1e6)]))  # fmt: skip
     c.step(t + 0.01, own(t + 0.01), [future, bearings, table])
     for k in range(2, 50):
         t_k = t + 0.01 * k
         c.step(t_k, own(t_k), [wire(motion(2, t_k))])
-        assert c._motion_hist[2].newest_s == t_k  # real samples keep coming in
+        assert c.scale.motion_hist[2].newest_s == t_k  # real samples keep coming in
     assert c.dropped["future_stamp"] == 3
-    assert 2 not in c._beta_in and (0, 2) not in c._lam_table
+    assert 2 not in c.bearings.beta_in and (0, 2) not in c.scale.lam_table
 
 
 def test_one_future_stamped_camera_frame_does_not_blind_the_core():
@@ -163,7 +167,7 @@ def test_a_clock_reset_rebuilds_the_stamped_peer_state():
     c.step(0.5, own(0.5), [wire(motion(2, 0.5))])  # restarted simulator: time starts again
     assert c.dropped["time_backwards"] == 1
     c.step(0.51, own(0.51), [wire(motion(2, 0.51))])
-    assert c._motion_hist[2].newest_s == 0.51 and c._own_hist.newest_s == 0.51
+    assert c.scale.motion_hist[2].newest_s == 0.51 and c.bearings.own_hist.newest_s == 0.51
 
 
 # ---------------------------------------------------------------- defect 4: bounded tables
@@ -175,13 +179,17 @@ def test_consensus_names_and_excitation_edges_are_bounded_by_the_fleet():
     for k in range(20):
         t += 0.01
         names = [f"n{k}_{m}" for m in range(1000)]
-        cons = ConsensusState(sender=2, stamp_s=t, names=["e_index", *names],
-                              x=[[0.0]] * 1001, z=[[0.0]] * 1001)  # fmt: skip
+        cons = ConsensusState(sender=2, stamp_s=t, states=[
+            ConsensusEntry(name, [0.0], [0.0]) for name in ["e_index", *names]])  # fmt: skip
         first = [m % 50 for m in range(1000)]
         second = [50 + k + m // 50 for m in range(1000)]
-        table = ExcitationTable(sender=2, stamp_s=t, first=[0, *first], second=[2, *second],
-                                excitation=[1.0] * 1001, stamps_s=[t] * 1001)  # fmt: skip
+        table = ExcitationTable(sender=2, stamp_s=t, entries=[
+            EdgeExcitation(a, b, 1.0, t) for a, b in zip([0, *first], [2, *second], strict=True)
+        ])  # fmt: skip
         c.step(t, own(t), [wire(cons), wire(table)])
-    assert set(c._cons_in) <= {"e_index", "p_bar", "dlam_dwl", "w_l"} and 2 in c._cons_in["e_index"]
-    assert set(c._lam_table) <= {(0, 1), (0, 2), (1, 2)} and (0, 2) in c._lam_table
+    assert (
+        set(c.scale.cons_in) <= {"e_index", "p_bar", "dlam_dwl", "w_l"}
+        and 2 in c.scale.cons_in["e_index"]
+    )
+    assert set(c.scale.lam_table) <= {(0, 1), (0, 2), (1, 2)} and (0, 2) in c.scale.lam_table
     assert c.dropped["unknown_name"] == 20_000 and c.dropped["unknown_edge"] == 20_000

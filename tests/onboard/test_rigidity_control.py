@@ -155,12 +155,13 @@ def test_camera_angular_velocity_reduces_to_yaw_rate() -> None:
 def test_agent_core_rigidity_mode_drops_bad_payloads_and_commands_finite() -> None:
     from messages.agent import BearingMeasurement, OwnMeasurements, TargetMeasurement
     from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
-    from onboard.agent import AgentConfig, AgentCore
+    from onboard.core.agent import AgentCore
+    from onboard.core.config import build_config
 
     edges = tuple((i, j) for i in range(3) for j in range(3) if i != j)
     prior = ((0.0, 0.0, -5.0), (3.0, 1.0, -5.0), (2.0, -2.0, -6.0))
     core = AgentCore(
-        AgentConfig(
+        build_config(
             agent_id=0,
             n_agents=3,
             edges=edges,
@@ -170,13 +171,13 @@ def test_agent_core_rigidity_mode_drops_bad_payloads_and_commands_finite() -> No
             track_target=0,
         )
     )
-    bad = AngleLocalizationShare(
-        sender=1, seq=0, stamp_s=0.0, p_hat_ned=prior[1], yaw_hat_rad=0.0, yaw_known=True,
-        targets=[0], grad_ned=[],
+    bad = RigidityEigenShare(  # not the layout of 3 vectors per agent
+        sender=1, seq=0, stamp_s=0.0, lambda_hat=0.1, targets=[0], state=np.zeros(3),
+        per_target=np.zeros(3),
     )  # fmt: skip
     good = AngleLocalizationShare(
         sender=2, seq=0, stamp_s=0.0, p_hat_ned=prior[2], yaw_hat_rad=0.0, yaw_known=True,
-        targets=[], grad_ned=[],
+        blocks=[],
     )  # fmt: skip
     own = OwnMeasurements(
         t_s=0.01,
@@ -193,7 +194,7 @@ def test_agent_core_rigidity_mode_drops_bad_payloads_and_commands_finite() -> No
     assert core.dropped.get("bad_bearing") == 1
     assert {type(m) for m in out} == {AngleLocalizationShare, RigidityEigenShare}
     # a core without the rigidity layer counts rigidity payloads as unknown
-    plain = AgentCore(AgentConfig(agent_id=0, n_agents=3, edges=edges, mode="hold"))
+    plain = AgentCore(build_config(agent_id=0, n_agents=3, edges=edges, mode="hold"))
     plain.step(0.0, own, [good])
     assert plain.dropped.get("unknown_type") == 1
 

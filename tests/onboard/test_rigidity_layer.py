@@ -10,10 +10,11 @@ import pytest
 from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
-from onboard.agent_config import AgentConfig
+from onboard.core.config import AgentConfig, build_config
+from onboard.core.peers import Drops, PeerTable
+from onboard.core.rigidity import ROUND_TIMEOUT_S, RigidityLayer
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph
-from onboard.rigidity_layer import RigidityLayer
 
 N = 4
 P = np.array([[0.0, 0.0, -5.0], [3.0, 1.0, -5.5], [2.5, -2.0, -6.0], [4.0, 0.5, -4.0]])
@@ -21,12 +22,30 @@ _C = P.mean(axis=0)
 YAW = np.arctan2(_C[1] - P[:, 1], _C[0] - P[:, 0])  # cameras toward the barycenter
 
 
+def _layer(cfg: AgentConfig) -> RigidityLayer:
+    """Agent ``cfg``'s rigidity layer on a peer table of its own."""
+    me = cfg.graph.agent_id
+    peers = PeerTable(frozenset(range(N)) - {me}, cfg.safety.peer_timeout_s, Drops())
+    layer = RigidityLayer(cfg.graph, cfg.rigidity, peers)
+    for kind, route in layer.routes.items():
+        peers.route(kind, route)
+    return layer
+
+
+def _give(layer: RigidityLayer, msg: object) -> bool:
+    """Deliver ``msg`` through the layer's peer table; whether it was kept."""
+    peers = layer.peers
+    before = sum(peers.drops.values())
+    peers.receive(msg, msg.stamp_s)  # type: ignore[arg-type, attr-defined]
+    return sum(peers.drops.values()) == before
+
+
 def _layers(**overrides: object) -> list[RigidityLayer]:
     edges = tuple((int(i), int(j)) for i, j in complete_graph(N))
     prior = tuple(tuple(float(x) for x in row) for row in P)
     out = []
     for i in range(N):
-        cfg = AgentConfig(
+        cfg = build_config(
             agent_id=i,
             n_agents=N,
             edges=edges,
@@ -34,8 +53,7 @@ def _layers(**overrides: object) -> list[RigidityLayer]:
             p_hat0_ned=prior,
             **overrides,  # type: ignore[arg-type]
         )
-        others = [j for j in range(N) if j != i]
-        out.append(RigidityLayer(cfg, others, others))
+        out.append(_layer(cfg))
     return out
 
 
@@ -62,9 +80,9 @@ def _exchange(layers: list[RigidityLayer], rounds: int) -> list[list]:
         outs = []
         for i, layer in enumerate(layers):
             for msg in inbox[i]:
-                assert layer.receive(msg.sender, msg)
+                assert _give(layer, msg)
             out: list = []
-            layer.step(t, 0.01, _own(i, t), float(YAW[i]), (0.0, 0.0, 0.0), {}, r, out)
+            layer.advance(t, 0.01, _own(i, t), float(YAW[i]), (0.0, 0.0, 0.0), {}, r, out)
             outs.append(out)
         inbox = [[m for j, out in enumerate(outs) if j != i for m in out] for i in range(N)]
     return inbox
@@ -152,11 +170,11 @@ def test_wrong_layout_is_malformed() -> None:
     inbox = _exchange(layers, 2)
     share = next(m for m in inbox[0] if isinstance(m, RigidityEigenShare))
     short = msgspec.structs.replace(share, state=share.state[:-1])
-    assert not layers[0].receive(share.sender, short)
+    assert not _give(layers[0], short)
     short = msgspec.structs.replace(share, targets=share.targets[:-1])
-    assert not layers[0].receive(share.sender, short)
+    assert not _give(layers[0], short)
     loc = next(m for m in inbox[0] if isinstance(m, AngleLocalizationShare))
-    assert layers[0].receive(loc.sender, loc)
+    assert _give(layers[0], loc)
 
 
 def _exchange_late(layers: list[RigidityLayer], ticks: int, lag: int) -> None:
@@ -167,9 +185,9 @@ def _exchange_late(layers: list[RigidityLayer], ticks: int, lag: int) -> None:
         inbox = pending.pop(k, [[] for _ in layers])
         for i, layer in enumerate(layers):
             for msg in inbox[i]:
-                assert layer.receive(msg.sender, msg)
+                assert _give(layer, msg)
             out: list = []
-            layer.step(t, 0.01, _own(i, t), float(YAW[i]), (0.0, 0.0, 0.0), {}, k, out)
+            layer.advance(t, 0.01, _own(i, t), float(YAW[i]), (0.0, 0.0, 0.0), {}, k, out)
             box = pending.setdefault(k + lag, [[] for _ in layers])
             for r in range(N):
                 if r != i:
@@ -193,23 +211,21 @@ def test_late_messages_slow_the_rounds_but_not_the_estimate() -> None:
 
 
 def test_a_round_waits_for_every_candidate_then_times_out() -> None:
-    from onboard.rigidity_layer import ROUND_TIMEOUT_S
-
     layers = _layers()
     inbox = _exchange(layers, 3)  # everyone has taken 3 rounds
     a = layers[0]
     assert a.rounds == 3
     for msg in inbox[0]:
-        a.receive(msg.sender, msg)
+        _give(a, msg)
     out: list = []
-    a.step(0.03, 0.01, _own(0, 0.03), float(YAW[0]), (0.0, 0.0, 0.0), {}, 3, out)
+    a.advance(0.03, 0.01, _own(0, 0.03), float(YAW[0]), (0.0, 0.0, 0.0), {}, 3, out)
     assert a.rounds == 4  # the neighbours' round 3 was there
     out = []
-    a.step(0.04, 0.01, _own(0, 0.04), float(YAW[0]), (0.0, 0.0, 0.0), {}, 4, out)
+    a.advance(0.04, 0.01, _own(0, 0.04), float(YAW[0]), (0.0, 0.0, 0.0), {}, 4, out)
     assert a.rounds == 4  # waiting: it sends round 4 again (a lost copy costs one step)
     assert [m.round for m in out if isinstance(m, RigidityEigenShare)] == [4]
     t = 0.03 + ROUND_TIMEOUT_S + 0.01  # nobody answered: go on with what it has
-    a.step(t, 0.01, _own(0, t), float(YAW[0]), (0.0, 0.0, 0.0), {}, 5, out)
+    a.advance(t, 0.01, _own(0, t), float(YAW[0]), (0.0, 0.0, 0.0), {}, 5, out)
     assert a.rounds == 5 and any(isinstance(m, RigidityEigenShare) for m in out)
 
 
@@ -218,8 +234,8 @@ def test_a_restarted_agent_joins_at_its_neighbours_round() -> None:
     inbox = _exchange(layers, 20)
     fresh = _layers()[0]  # agent 0 restarted
     for msg in inbox[0]:
-        fresh.receive(msg.sender, msg)
-    fresh.step(0.2, 0.01, _own(0, 0.2), float(YAW[0]), (0.0, 0.0, 0.0), {}, 0, [])
+        _give(fresh, msg)
+    fresh.advance(0.2, 0.01, _own(0, 0.2), float(YAW[0]), (0.0, 0.0, 0.0), {}, 0, [])
     assert fresh.rounds == 21
 
 
@@ -230,12 +246,11 @@ def test_maintenance_does_not_act_on_an_estimate_its_neighbours_disagree_with() 
     prior = tuple(tuple(float(x) for x in row) for row in P)
     layers = []
     for i in range(N):
-        cfg = AgentConfig(
+        cfg = build_config(
             agent_id=i, n_agents=N, edges=edges, mode="active", p_hat0_ned=prior,
             rigidity_maintenance=True, lambda_safe=1.0, lambda_min=0.1,
         )  # fmt: skip
-        others = [j for j in range(N) if j != i]
-        layers.append(RigidityLayer(cfg, others, others))
+        layers.append(_layer(cfg))
     inbox = _exchange(layers, 150)
     a = layers[0]
     assert a.agreed and np.linalg.norm(a.u_rigidity) > 0.0  # below "safe": it acts
@@ -243,8 +258,8 @@ def test_maintenance_does_not_act_on_an_estimate_its_neighbours_disagree_with() 
     for msg in inbox[0]:
         if isinstance(msg, RigidityEigenShare) and msg.sender == 1:  # neighbour 1 collapsed
             msg = msgspec.structs.replace(msg, lambda_hat=0.0, stamp_s=1.5, round=a.rounds)
-        a.receive(msg.sender, msg)
-    a.step(1.5, 0.01, _own(0, 1.5), float(YAW[0]), (0.0, 0.0, 0.0), {}, 150, [])
+        _give(a, msg)
+    a.advance(1.5, 0.01, _own(0, 1.5), float(YAW[0]), (0.0, 0.0, 0.0), {}, 150, [])
     assert a.lambda_hat > 0.5 * lam and not a.agreed
     assert np.linalg.norm(a.u_rigidity) == 0.0  # collision avoidance: nobody within r_safe
 
@@ -256,15 +271,15 @@ def test_a_restarted_estimator_sends_nothing_until_it_has_a_state() -> None:
     inbox = _exchange(layers, 5)
     a = layers[0]
     for msg in inbox[0]:
-        assert a.receive(msg.sender, msg)
+        assert _give(a, msg)
     a.eigen.v = np.full_like(a.eigen.v, 1e30)  # diverged
     out: list = []
-    a.step(0.05, 0.01, _own(0, 0.05), float(YAW[0]), (0.0, 0.0, 0.0), {}, 5, out)
+    a.advance(0.05, 0.01, _own(0, 0.05), float(YAW[0]), (0.0, 0.0, 0.0), {}, 5, out)
     assert a.eigen.restarts == 1
     assert not any(isinstance(m, RigidityEigenShare) for m in out)
     out = []
     t = 0.05 + 0.31  # nobody has its round: it times out, then shares a whole state again
-    a.step(t, 0.01, _own(0, t), float(YAW[0]), (0.0, 0.0, 0.0), {}, 6, out)
+    a.advance(t, 0.01, _own(0, t), float(YAW[0]), (0.0, 0.0, 0.0), {}, 6, out)
     shares = [m for m in out if isinstance(m, RigidityEigenShare)]
     assert len(shares) == 1 and a.wire.fits(shares[0])
-    assert layers[1].receive(0, shares[0])
+    assert _give(layers[1], shares[0])

@@ -1,8 +1,9 @@
 """The compiled team engine (sim.compiled_runner) against the agent cores it ports.
 
 Both engines get the same seed, so the same initial state, odometry offsets, bearing and
-odometry noise: without message loss the runs must agree to round-off, which checks every
-part of the port (time alignment, relays, consensus, the four controllers) at once."""
+odometry noise, and they lose the same message copies (sim.draws): with and without loss the
+runs must agree to round-off, which checks every part of the port (time alignment, relays,
+consensus, the five controllers) at once."""
 
 import math
 
@@ -11,8 +12,16 @@ import numpy as np
 import pytest
 
 from sim.compiled_runner import run_compiled
-from sim.runner import RunnerConfig, summarize
+from sim.runner import Recording, RunnerConfig, run, summarize
 from sim.scenarios import P0_NED, YAW0_RAD, agent_configs, run_scenario
+
+PAPER000_MODES = ["active", "random", "formation", "formation-active", "hold"]
+SCENARIO_OF = {
+    "active": "scale-active",
+    "random": "scale-random",
+    "formation": "scale-formation",
+    "formation-active": "scale-formation-active",
+}
 
 
 def _max_differences(a, b) -> tuple[float, float, float]:
@@ -23,18 +32,48 @@ def _max_differences(a, b) -> tuple[float, float, float]:
     )
 
 
-@pytest.mark.parametrize(
-    "name", ["scale-active", "scale-random", "scale-formation", "scale-formation-active"]
-)
-def test_engines_agree_to_round_off(name: str) -> None:
-    a = run_scenario(name, seed=1, duration_s=2.0)
-    b = run_scenario(name, seed=1, duration_s=2.0, engine="compiled")
+def _run_mode(mode: str, engine: str, loss: float, seed: int = 1, duration_s: float = 2.0):
+    if mode in SCENARIO_OF:
+        return run_scenario(SCENARIO_OF[mode], seed=seed, duration_s=duration_s, loss=loss,
+                            engine=engine)  # fmt: skip
+    configs = [msgspec.structs.replace(c, mode=mode) for c in agent_configs("scale-active", seed)]
+    rc = RunnerConfig(duration_s=duration_s, seed=seed, loss=loss)
+    return (run_compiled if engine == "compiled" else run)(configs, P0_NED, YAW0_RAD, rc)
+
+
+def _assert_agree(a: Recording, b: Recording) -> None:
     assert np.all(np.isfinite(b.chi_hat[1:]))
     assert max(_max_differences(a, b)) < 1e-9
     for field in ("lambda_bar_est", "e_index_est", "k_e", "w_l", "yaw_hat_rad"):
         assert np.allclose(getattr(a, field), getattr(b, field), rtol=1e-9, atol=1e-12), field
-    # and the run did something: the estimates moved away from the prior
-    assert np.max(np.abs(b.chi_hat[-1] - b.chi_hat[1])) > 1e-3
+
+
+@pytest.mark.parametrize("loss", [0.0, 0.1])
+@pytest.mark.parametrize("mode", PAPER000_MODES)
+def test_engines_agree_to_round_off(mode: str, loss: float) -> None:
+    duration_s = 2.0 if loss == 0.0 and mode != "hold" else 1.0  # the new cases: fast tier
+    a = _run_mode(mode, "cores", loss, duration_s=duration_s)
+    b = _run_mode(mode, "compiled", loss, duration_s=duration_s)
+    _assert_agree(a, b)
+    # and the run did something: the estimates moved away from the prior (in hold nothing
+    # moves the team, so only the localization converges)
+    if mode == "hold":
+        assert np.max(np.abs(b.p_hat_ned[-1] - b.p_hat_ned[0])) > 1e-2
+        assert np.max(np.abs(b.p_ned[-1] - b.p_ned[0])) == 0.0
+    else:
+        assert np.max(np.abs(b.chi_hat[-1] - b.chi_hat[1])) > 1e-3
+
+
+def test_both_engines_lose_the_same_copies() -> None:
+    """With loss the runs differ from the lossless one by far more than the engines differ
+    from each other: the loss changed the run, and in the same way in both (formation-active
+    sends every payload kind)."""
+    mode = "formation-active"
+    clean = _run_mode(mode, "compiled", 0.0, duration_s=1.0)
+    a = _run_mode(mode, "cores", 0.3, duration_s=1.0)
+    b = _run_mode(mode, "compiled", 0.3, duration_s=1.0)
+    _assert_agree(a, b)
+    assert max(_max_differences(clean, b)) > 1e-6
 
 
 def test_engines_agree_with_noise_latency_and_autopilot_lags() -> None:
@@ -85,7 +124,6 @@ def test_unsupported_options_are_refused(runner, overrides, message) -> None:
         run_compiled(configs, P0_NED, YAW0_RAD, runner)
 
 
-def test_a_mode_it_does_not_have_is_refused() -> None:
-    configs = [msgspec.structs.replace(c, mode="hold") for c in agent_configs("scale-active")]
-    with pytest.raises(ValueError, match="no mode 'hold'"):
-        run_compiled(configs, P0_NED, YAW0_RAD, RunnerConfig(duration_s=0.1))
+def test_a_mode_nobody_has_is_refused_before_either_engine_runs() -> None:
+    with pytest.raises(ValueError, match="unknown mode 'orbit'"):
+        [msgspec.structs.replace(c, mode="orbit") for c in agent_configs("scale-active")]

@@ -52,7 +52,8 @@ def test_param_encodings():
     ap = ardupilot_params(3)
     _, p = ap.by_name("SYSID_THISMAV")
     assert ap.wire_value(p) == 3.0  # cast
-    assert ap.set_from_wire("SYSID_THISMAV", 300.0, 6).value == 300
+    assert ap.set_from_wire("SYSID_THISMAV", 200.0, 6).value == 200
+    assert ap.set_from_wire("SYSID_THISMAV", 300.0, 6) is None  # outside 1..255 (issue 23)
     assert ap.by_index(len(ap)) is None and ap.by_index(-1) is None
 
 

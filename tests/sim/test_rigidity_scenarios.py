@@ -10,7 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from messages.agent import OwnMeasurements
-from onboard.agent import AgentConfig, AgentCore
+from onboard.core.agent import AgentCore
+from onboard.core.config import build_config
 from onboard.geometry import camera_axis_ned
 from onboard.graph import complete_graph, sensing_graph
 from onboard.rigidity.angle import is_infinitesimally_angle_rigid
@@ -42,11 +43,11 @@ def test_setup_is_deterministic_per_seed() -> None:
     b, pb, _ = agent_configs("rigidity-tracking", 3)
     c, pc, _ = agent_configs("rigidity-tracking", 4)
     assert a == b and np.array_equal(pa, pb)
-    assert a[0].p_hat0_ned != c[0].p_hat0_ned and not np.array_equal(pa, pc)
-    assert [x.track_target for x in a] == [0, 1, 2, -1, -1]
-    assert all(x.rigidity_maintenance for x in a)
+    assert a[0].graph.p_hat0_ned != c[0].graph.p_hat0_ned and not np.array_equal(pa, pc)
+    assert [x.rigidity.track_target for x in a] == [0, 1, 2, -1, -1]
+    assert all(x.rigidity.rigidity_maintenance for x in a)
     off, _, _ = agent_configs("rigidity-tracking-off", 3)
-    assert not any(x.rigidity_maintenance for x in off)
+    assert not any(x.rigidity.rigidity_maintenance for x in off)
     path = target_path("rigidity-tracking", 3, pa.mean(axis=0))
     np.testing.assert_array_equal(path(0.0), path(2.0))  # targets wait for the warm-up
     assert not np.allclose(path(10.0), path(0.0))
@@ -73,7 +74,7 @@ def test_runner_field_of_view_limits_bearings() -> None:
     try:
         prior = tuple(tuple(float(x) for x in row) for row in p)
         configs = [
-            AgentConfig(agent_id=i, n_agents=5, edges=edges, mode="hold", p_hat0_ned=prior)
+            build_config(agent_id=i, n_agents=5, edges=edges, mode="hold", p_hat0_ned=prior)
             for i in range(5)
         ]
         rc = RunnerConfig(duration_s=0.05, dt_s=0.01, fov_deg=FOV_DEG, sensing_range_m=RANGE_M)

@@ -9,7 +9,7 @@ import pytest
 import sim.runner as runner_mod
 from messages.agent import OwnMeasurements
 from messages.peer import PeerPayload
-from onboard.agent import AgentCore
+from onboard.core.agent import AgentCore
 from onboard.graph import reciprocal_pairs
 from onboard.rigidity.bearing import ibr_r3s1
 from sim.runner import (

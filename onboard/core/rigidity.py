@@ -1,8 +1,9 @@
 """The agent core's rigidity layer: angle localization, distributed eigen-estimation and the
 rigidity-maintenance, collision and tracking actions of paper 003, for one vehicle, no I/O.
 
-:class:`onboard.agent.AgentCore` owns one :class:`RigidityLayer` when its mode is
-``rigidity-tracking`` or ``rigidity_maintenance`` is on. Per step the layer
+The core composes one :class:`RigidityLayer` when its mode is ``rigidity-tracking`` or
+``rigidity_maintenance`` is on (:data:`onboard.core.modes.MODE_LAYERS`). It steps at most every
+``rigidity_period_s`` (between steps it only takes eigen-estimate rounds); per step it
 
 1. takes the current camera frame (the bearings in ``own.bearings``: the graph switches with
    the field of view), re-reads the yaw of the body frame in the estimated frame, and builds
@@ -31,14 +32,18 @@ It publishes :class:`messages.rigidity.AngleLocalizationShare` and
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from messages.agent import OwnMeasurements
 from messages.codec import Payload
-from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
+from messages.rigidity import AngleLocalizationShare, GradientBlock, RigidityEigenShare
 from onboard.control import rigidity as ctl
+from onboard.core.config import Graph, RigidityGains
+from onboard.core.layer import Command, Own
+from onboard.core.peers import PeerTable, Route
 from onboard.estimation import star_rigidity as st
 from onboard.estimation.angle_localization import AngleLocalizer, distance_gradient
 from onboard.estimation.distributed_eigen import (
@@ -52,9 +57,6 @@ from onboard.geometry import FloatArray
 from onboard.graph import complete_graph
 from onboard.rigidity.angle import weighted_eigenvalues_gradients
 from onboard.rigidity.weights import SensingModel
-
-if TYPE_CHECKING:
-    from onboard.agent_config import AgentConfig
 
 Vec3 = tuple[float, float, float]
 FRAME_MAX_AGE_S = 0.2
@@ -81,6 +83,18 @@ def _blend(theta: FloatArray, tau: float) -> list[tuple[int, float]]:
     kept = [(m, float(w)) for m, w in enumerate(pi.tolist()) if w >= BLEND_FLOOR]
     total = sum(w for _, w in kept)
     return [(m, w / total) for m, w in kept]
+
+
+def _keep(j: int, msg: Any) -> bool:
+    return True
+
+
+def _block_for(msg: AngleLocalizationShare, me: int) -> Vec3 | None:
+    """The first gradient block ``msg`` addresses to agent ``me`` (``None``: none)."""
+    for b in msg.blocks:
+        if b.target == me:
+            return b.grad_ned
+    return None
 
 
 def _vec(a: FloatArray) -> Vec3:
@@ -160,13 +174,30 @@ class EigenWire:
 class RigidityLayer:
     """One agent's paper 003 estimators and controller terms (module docstring)."""
 
-    def __init__(self, cfg: AgentConfig, out_targets: list[int], neighbours: list[int]) -> None:
-        self.cfg = cfg
-        self.id = cfg.agent_id
-        self.candidates = list(out_targets)
-        self.neighbours = list(neighbours)
-        p0 = cfg.p_hat0_ned[self.id] if cfg.p_hat0_ned else (0.0, 0.0, 0.0)
-        self.loc = AngleLocalizer(np.asarray(p0, dtype=float))
+    def __init__(self, graph: Graph, gains: RigidityGains, peers: PeerTable,
+                 distances: Callable[[], dict[int, float]] | None = None,
+                 localizes: bool = True) -> None:  # fmt: skip
+        """``peers``: the core's table (its rigidity payloads' senders: :attr:`neighbours`);
+        ``distances``: SfM distances per neighbour (paper 000's scale layer), used as scale
+        with ``rigidity_scale_from_sfm``; ``localizes``: angle localization is the agent's
+        position estimate (its status), as when no scale layer runs."""
+        cfg = gains
+        self.cfg = gains
+        self.graph = graph
+        self.peers = peers
+        self.id = me = graph.agent_id
+        r_edges = gains.rigidity_edges or graph.edges
+        self.candidates = sorted({j for i, j in r_edges if i == me})
+        self.neighbours = sorted(set(self.candidates) | {i for i, j in r_edges if j == me})
+        senders = frozenset(self.neighbours)
+        self.routes = {
+            AngleLocalizationShare: Route(senders, _keep),  # the table keeps it
+            RigidityEigenShare: Route(senders, self.take_eigen),
+        }
+        self._distances_of = distances
+        self.localizes = localizes
+        self._t: float | None = None
+        self.loc = AngleLocalizer(np.asarray(graph.p0(me), dtype=float))
         self.model = SensingModel(cfg.fov_deg, cfg.range_m)
         self.gains = ctl.MaintenanceGains(
             lambda_min=cfg.lambda_min,
@@ -184,10 +215,8 @@ class RigidityLayer:
         gains = EigenGains(
             columns=cfg.eigen_columns, step=cfg.eigen_step, k_t=cfg.eigen_k_t, k_n=cfg.eigen_k_n
         )
-        self.eigen = DistributedEigenEstimator.start(cfg.seed, self.id, gains)
+        self.eigen = DistributedEigenEstimator.start(graph.seed, self.id, gains)
         self.wire = EigenWire(self.eigen.gains.columns)
-        self._loc_in: dict[int, AngleLocalizationShare] = {}
-        self._eig_in: dict[int, RigidityEigenShare] = {}
         self.lambda_hat = 0.0
         self.grad_lambda_p = np.zeros(3)
         self.grad_lambda_yaw = 0.0
@@ -208,23 +237,52 @@ class RigidityLayer:
         """Steps whose action was not finite (dropped to zero)."""
 
     # ------------------------------------------------------------------ inbox
-    def receive(self, j: int, msg: Payload) -> bool:
-        """Keep the latest rigidity payload of neighbour ``j``; False if malformed."""
-        if isinstance(msg, AngleLocalizationShare):
-            if len(msg.targets) != len(msg.grad_ned):
-                return False
-            self._loc_in[j] = msg
-        elif isinstance(msg, RigidityEigenShare):
-            if not self.wire.fits(msg):
-                return False
-            self._eig_in[j] = msg
-        return True
+    def take_eigen(self, j: int, msg: RigidityEigenShare) -> bool:
+        """Whether neighbour ``j``'s eigen share fits this agent's :class:`EigenWire` (the
+        table keeps it)."""
+        return self.wire.fits(msg)
+
+    @property
+    def _loc_in(self) -> dict[int, AngleLocalizationShare]:
+        return self.peers.all(AngleLocalizationShare)
+
+    @property
+    def _eig_in(self) -> dict[int, RigidityEigenShare]:
+        return self.peers.all(RigidityEigenShare)
 
     def _fresh(self, stamp_s: float, t_s: float) -> bool:
-        return t_s - stamp_s <= self.cfg.peer_timeout_s
+        return self.peers.is_fresh(stamp_s, t_s)
 
     # ------------------------------------------------------------------- step
-    def step(
+    def step(self, own: Own, outbox: list[Payload]) -> Command | None:
+        """Advance the estimators if ``rigidity_period_s`` passed since the last time (else
+        take an eigen-estimate round if one is due); the actions of the latest advance."""
+        t_s, last = own.t_s, self._t
+        if last is None or t_s - last >= self.cfg.rigidity_period_s - 1e-9:
+            sfm_d = {} if self._distances_of is None else self._distances_of()
+            dt = own.dt_s if last is None else t_s - last
+            self.advance(t_s, dt, own.raw, own.yaw_rad, own.v_body, sfm_d, own.seq, outbox)
+            self._t = t_s
+        else:
+            self.eigen_round(t_s, own.seq, outbox)
+        u, w = self.u_rigidity, self.w_rigidity
+        return Command((float(u[0]), float(u[1]), float(u[2])), float(w))
+
+    def finish(self, own: Own, outbox: list[Payload]) -> None:
+        return None
+
+    def forget_time(self) -> None:
+        """The clock went back: the next step advances at once."""
+        self._t = None
+
+    def status(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"rigidity_eigenvalue": self.lambda_hat}
+        if self.localizes:  # angle localization is the position estimate
+            out["p_hat_ned"] = tuple(float(x) for x in self.loc.p_hat_ned)
+            out["yaw_hat_rad"] = self.yaw_hat
+        return out
+
+    def advance(
         self,
         t_s: float,
         dt: float,
@@ -264,10 +322,11 @@ class RigidityLayer:
         g_loc = st.angle_gradient(s_seen, beta, cfg.k_angle_loc)[1]
         g_loc += st.vertical_gradient(s_seen, beta, cfg.k_vertical_loc)[1]
         # the own block plus what the neighbours sent, summed in order (one conversion)
+        me = self.id
         sent = [
-            msg.grad_ned[msg.targets.index(self.id)]
+            g
             for j, msg in self._loc_in.items()
-            if j in p_est and self.id in msg.targets
+            if j in p_est and (g := _block_for(msg, me)) is not None
         ]
         grad = np.concatenate((g_loc[:1], np.array(sent, dtype=float).reshape(-1, 3))).sum(axis=0)
         for j, d in self._distances(own, t_s, sfm_distances).items():
@@ -281,8 +340,9 @@ class RigidityLayer:
                 p_hat_ned=_vec(p_own),
                 yaw_hat_rad=self.yaw_hat,
                 yaw_known=loc.yaw_known,
-                targets=list(self.seen),
-                grad_ned=_vecs(g_loc[1:]),
+                blocks=[
+                    GradientBlock(t, g) for t, g in zip(self.seen, _vecs(g_loc[1:]), strict=True)
+                ],
             )
         )
         loc.step(dt, v_body, yaw_odometry_rad, grad)
@@ -306,7 +366,7 @@ class RigidityLayer:
         self._actions(own, t_s, p_own, p_all)
 
     def eigen_round(self, t_s: float, seq: int, outbox: list[Payload]) -> None:
-        """Between two :meth:`step` calls: take an eigen-estimate round if every candidate's
+        """Between two :meth:`advance` calls: take an eigen-estimate round if every candidate's
         share of the previous round is in, on the framework of the last step.
 
         A round per message trip instead of per step: with the layer at 20 Hz and 30 ms of
@@ -449,8 +509,8 @@ class RigidityLayer:
             return
         # |y|^2 = N (Ritz normalization): d lambda/dx = d(y^T M_w y)/dx / N (eq. 21)
         self.lambda_hat = eig.lambda_hat
-        self.grad_lambda_p = (g_form[0] + form_in) / cfg.n_agents
-        self.grad_lambda_yaw = g_form_yaw / cfg.n_agents
+        self.grad_lambda_p = (g_form[0] + form_in) / self.graph.n_agents
+        self.grad_lambda_yaw = g_form_yaw / self.graph.n_agents
 
     def _centralized(self, p_own: FloatArray, t_s: float) -> None:
         """Eigenpair from every agent's shared estimate (all-to-all communication needed)."""
