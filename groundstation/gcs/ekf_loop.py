@@ -254,7 +254,7 @@ class EkfLoop:
         f = self.last_frame.get(i)
         if f is None or abs(f.stamp_s - t_s) > self.cfg.stale_s:
             return 0.0
-        for target, b in zip(f.targets, f.beta_body, strict=False):
+        for target, b in ((e.target, e.beta_body) for e in f.bearings):
             if target == j and _finite(*b) and len(b) == 3 and math.hypot(b[0], b[1]) > 0.1:
                 return _wrap(math.atan2(u_ref[1], u_ref[0]) - math.atan2(b[1], b[0]))
         return 0.0
@@ -271,7 +271,7 @@ class EkfLoop:
             self.ids.append(s)
         if s not in self.ids:
             return
-        for target, b in zip(frame.targets, frame.beta_body, strict=False):
+        for target, b in ((e.target, e.beta_body) for e in frame.bearings):
             if target in self.ids or target not in self.latest or target == s:
                 continue
             bv = np.asarray(b, dtype=float)
@@ -384,7 +384,7 @@ class EkfLoop:
             self._predict(index, t)
         self.t_s = t if self.t_s is None else max(self.t_s, t)
         edges, beta = [], []
-        for target, b in zip(frame.targets, frame.beta_body, strict=False):
+        for target, b in ((e.target, e.beta_body) for e in frame.bearings):
             if target not in index or target == frame.sender:
                 self.count("bearing_to_unknown_vehicle")
                 continue

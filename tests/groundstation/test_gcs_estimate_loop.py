@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from groundstation.gcs.ekf_loop import EkfLoop, EkfLoopConfig, rebase
-from messages.peer import BearingShare, MotionShare
+from messages.peer import BearingShare, MotionShare, TargetBearing
 from onboard.estimation.se3_ekf import Se3EkfState, full_poses, initial_state, relative_poses
 from onboard.geometry import rot_z
 
@@ -73,7 +73,10 @@ def _feed(
             loop.add_frame(
                 BearingShare(
                     sender=i, seq=k, stamp_s=t, yaw_rad=float(yaw[a]),
-                    targets=[IDS[b] for b in others], beta_body=[tuple(b.tolist()) for b in beta],
+                    bearings=[
+                        TargetBearing(target=IDS[b], beta_body=tuple(v.tolist()))
+                        for b, v in zip(others, beta, strict=True)
+                    ],
                 )
             )  # fmt: skip
             off = (daemon_offset or {}).get(i, np.zeros(3))
@@ -156,12 +159,19 @@ def test_nan_and_stale_samples_are_counted_and_skipped():
     )
     loop.add_motion(nan)
     bad = BearingShare(
-        sender=1, seq=0, stamp_s=2.0, yaw_rad=0.0, targets=[2, 3],
-        beta_body=[(math.nan, 0.0, 1.0), (0.0, 0.0, 1.0)],
+        sender=1, seq=0, stamp_s=2.0, yaw_rad=0.0,
+        bearings=[
+            TargetBearing(target=2, beta_body=(math.nan, 0.0, 1.0)),
+            TargetBearing(target=3, beta_body=(0.0, 0.0, 1.0)),
+        ],
     )  # fmt: skip
     assert loop.add_frame(bad)  # the good bearing still updates
     late = BearingShare(
-        sender=1, seq=0, stamp_s=0.5, yaw_rad=0.0, targets=[2], beta_body=[(1.0, 0.0, 0.0)]
+        sender=1,
+        seq=0,
+        stamp_s=0.5,
+        yaw_rad=0.0,
+        bearings=[TargetBearing(target=2, beta_body=(1.0, 0.0, 0.0))],
     )
     assert not loop.add_frame(late)
     loop.add_daemon_estimate(2, 2.0, (math.inf, 0.0, 0.0), 0.0)
