@@ -4,7 +4,8 @@
 * ``arm | takeoff | land`` (autopilots, MAVLink), ``start | hold`` (agents, Zenoh), ``stop``
   (both: the emergency action) — to ``--ids 1,3`` or ``--all``, confirmed unless ``--yes``;
 * ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``;
-* ``estimate --replay IN.mcap [--json]`` — paper 001's centralized EKF on a recording.
+* ``estimate [--duration S] [--json]`` — paper 001's centralized EKF live over Zenoh beside the
+  daemons' estimates (``--replay IN.mcap``: on a recording).
 
 Exit status: 0 success, 1 a command failed for some vehicle (or was not confirmed), 2 bad
 usage or a link that cannot be opened. Zenoh, pymavlink, mcap and matplotlib are imported
@@ -547,17 +548,37 @@ def estimate(
     bearing_noise_deg: Annotated[
         float, typer.Option(help="Bearing noise the filter assumes (deg, 1 sigma).")
     ] = 1.0,
+    fleet: FleetOpt = "alpha",
+    zenoh: ZenohOpt = None,
+    zenoh_listen: ZenohListenOpt = None,
+    keys: KeysOpt = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Live: stop after this long (s).")
+    ] = None,
+    max_disagreement_m: Annotated[
+        float,
+        typer.Option(help="Live: alarm when the EKF and the daemons disagree by more (m)."),
+    ] = 1.5,
+    silent_s: Annotated[
+        float, typer.Option(help="Live: drop a vehicle silent for this long (s).")
+    ] = 3.0,
 ) -> None:
-    """Paper 001's centralized EKF on the team's bearings and odometry (issue 26): final scale
-    and, with truth in the recording, each vehicle's pose error. Only --replay for now."""
+    """Paper 001's centralized EKF on the team's bearings and odometry (issue 26). Live (over
+    Zenoh): a table of its scale and each vehicle's pose beside the daemons' own estimates, an
+    alarm when they disagree; --json prints the summary at the end. --replay FILE.mcap: final
+    scale and, with truth in the recording, each vehicle's pose error."""
     import math
 
-    from groundstation.gcs.ekf_replay import ReplayConfig, replay_estimate
-
-    if replay is None:
-        raise _fail("live estimation over Zenoh is not implemented yet: use --replay FILE.mcap")
     if not (math.isfinite(bearing_noise_deg) and bearing_noise_deg > 0):
         raise _fail("--bearing-noise-deg must be a positive number")
+    if replay is None:
+        _estimate_live(
+            fleet, zenoh, zenoh_listen, keys, duration, json, bearing_noise_deg,
+            max_disagreement_m, silent_s,
+        )  # fmt: skip
+        return
+    from groundstation.gcs.ekf_replay import ReplayConfig, replay_estimate
+
     _check_recording(replay)
     result = replay_estimate(
         replay, ReplayConfig(bearing_sigma_rad=math.radians(bearing_noise_deg))
@@ -569,4 +590,76 @@ def estimate(
         for k, v in summary.items():
             typer.echo(f"{k:>20}: {v}")
     if result.state is None:
+        raise typer.Exit(EXIT_FAILED)
+
+
+def _estimate_live(
+    fleet: str,
+    zenoh: list[str] | None,
+    zenoh_listen: list[str] | None,
+    keys: Path | None,
+    duration: float | None,
+    json: bool,
+    bearing_noise_deg: float,
+    max_disagreement_m: float,
+    silent_s: float,
+) -> None:
+    """``gcs estimate`` without ``--replay`` (:mod:`groundstation.gcs.ekf_live`): until
+    ``--duration``, Ctrl-C or SIGTERM; exit 1 if the filter never updated."""
+    import math
+
+    from groundstation.gcs.ekf_live import LiveEstimator, render
+    from groundstation.gcs.ekf_loop import EkfLoop, EkfLoopConfig
+
+    _check_fleet(fleet)
+    for name, x in (("--max-disagreement-m", max_disagreement_m), ("--silent-s", silent_s)):
+        if not (math.isfinite(x) and x > 0):
+            raise _fail(f"{name} must be a positive number")
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise _fail("--duration must be a positive number of seconds")
+    if zenoh is not None and _off(zenoh):
+        raise _fail("live estimation listens on Zenoh: --zenoh none is not possible")
+    cfg = EkfLoopConfig(
+        bearing_sigma_rad=math.radians(bearing_noise_deg),
+        max_disagreement_m=max_disagreement_m,
+        silent_s=silent_s,
+    )
+    loop = EkfLoop(cfg)
+    live_view = sys.stdout.isatty() and not json
+    from rich.console import Console
+
+    console = Console(width=None if sys.stdout.isatty() else 160)
+    err = Console(stderr=True, width=160)
+    est: LiveEstimator | None = None
+    with _sigterm_event() as stop, ExitStack() as stack:
+        try:  # Ctrl-C (or SIGTERM) at any point ends the run with its summary
+            session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
+            est = LiveEstimator(session, fleet, loop, on_event=lambda m: err.print(m, markup=False))
+            est.start()
+            stack.callback(est.close)
+            err.print(f"estimating fleet {fleet!r}: listening on Zenoh", markup=False)
+            t_end = None if duration is None else time.monotonic() + duration
+            live = None
+            if live_view:
+                from rich.live import Live
+
+                live = stack.enter_context(
+                    Live(render(loop.summary(), fleet), console=console, auto_refresh=False)
+                )
+            next_draw = 0.0
+            while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
+                est.pump(0.05)
+                if live is not None and time.monotonic() >= next_draw:
+                    live.update(render(loop.summary(), fleet), refresh=True)
+                    next_draw = time.monotonic() + 0.25
+        except KeyboardInterrupt:
+            pass
+    summary = loop.summary()
+    summary["samples"] = est.received if est is not None else 0
+    if json:
+        typer.echo(jsonlib.dumps(summary))
+    elif not live_view:
+        console.print(render(summary, fleet))
+    if loop.updates == 0:
+        err.print("the filter never updated: no odometry and bearings from 2 vehicles heard")
         raise typer.Exit(EXIT_FAILED)

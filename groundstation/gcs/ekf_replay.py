@@ -8,7 +8,8 @@ bearings are levelled, the rates are yaw rates), a special case of the filter's 
 model with ``w = (0, 0, yaw rate)``. The vehicle with the lowest id is the reference (it moves:
 relative kinematics, :mod:`onboard.estimation.se3_ekf`).
 
-Processing, in the order of the samples' ``stamp_s``: at each camera frame the filter predicts
+Processing, in the order of the samples' ``stamp_s``, by :class:`groundstation.gcs.ekf_loop.EkfLoop`
+(the loop the live ``gcs estimate`` runs too, here with the team fixed): at each camera frame the filter predicts
 from the previous frame with each vehicle's latest odometry (zero-order hold) and updates with
 the frame's bearings. Bad input is counted and skipped: undecodable samples, bearings that are
 not unit vectors or name a vehicle that never sent odometry, odometry older than ``stale_s``
@@ -21,31 +22,21 @@ reference, level, with standard deviations ``prior_sigma_p_m`` and ``prior_sigma
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from groundstation.gcs.ekf_loop import EkfLoop, EkfLoopConfig
 from groundstation.gcs.record import ZENOH_ENCODING, read_recording
 from groundstation.gcs.schemas import decode_sample
 from messages.peer import BearingShare, MotionShare
 from messages.sim import Truth
-from onboard.estimation.se3_ekf import Se3EkfState, initial_state, predict, update
+from onboard.estimation.se3_ekf import Se3EkfState
 from onboard.geometry import FloatArray, rot_z
 
-
-@dataclass(frozen=True)
-class ReplayConfig:
-    """Filter settings for a replay."""
-
-    bearing_sigma_rad: float = math.radians(1.0)
-    velocity_sigma_m_s: float = 0.1
-    rate_sigma_rad_s: float = 0.02
-    stale_s: float = 0.5
-    stale_velocity_sigma_m_s: float = 2.0
-    prior_radius_m: float = 3.0
-    prior_sigma_p_m: float = 3.0
-    prior_sigma_theta_rad: float = 1.0
+ReplayConfig = EkfLoopConfig
+"""Filter settings for a replay (the loop's; membership is fixed: nobody is dropped)."""
 
 
 @dataclass
@@ -111,8 +102,9 @@ def _count(counts: dict[str, int], word: str) -> None:
     counts[word] = counts.get(word, 0) + 1
 
 
-def replay_estimate(path: str | Path, cfg: ReplayConfig = ReplayConfig()) -> ReplayResult:
+def replay_estimate(path: str | Path, cfg: ReplayConfig | None = None) -> ReplayResult:
     """Run the filter over a recording (module doc). Raises ``NotMcapError`` for a non-MCAP."""
+    cfg = cfg if cfg is not None else ReplayConfig()
     counts: dict[str, int] = {}
     motions: list[MotionShare] = []
     frames: list[BearingShare] = []
@@ -136,64 +128,22 @@ def replay_estimate(path: str | Path, cfg: ReplayConfig = ReplayConfig()) -> Rep
     if len(ids) < 2:
         _count(counts, "fewer_than_2_vehicles_with_odometry")
         return result
-    index = {i: k for k, i in enumerate(ids)}
-    n = len(ids)
-    motions.sort(key=lambda m: m.stamp_s)
-    frames.sort(key=lambda f: f.stamp_s)
-    angles = 2.0 * np.pi * np.arange(1, n) / n
-    p0 = cfg.prior_radius_m * np.stack([np.cos(angles), np.sin(angles), np.zeros(n - 1)], axis=1)
-    state = initial_state(
-        p0, np.tile(np.eye(3), (n - 1, 1, 1)), cfg.prior_sigma_p_m, cfg.prior_sigma_theta_rad
-    )
-    latest: dict[int, MotionShare] = {}
-    m_next = 0
-    t_prev: float | None = None
-    for frame in frames:
-        t = frame.stamp_s
-        while m_next < len(motions) and motions[m_next].stamp_s <= t:
-            latest[motions[m_next].sender] = motions[m_next]
-            m_next += 1
-        if frame.sender not in index:
-            _count(counts, "bearings_from_vehicle_without_odometry")
-            continue
-        if t_prev is not None and t > t_prev:
-            v = np.zeros((n, 3))
-            w = np.zeros((n, 3))
-            std = np.zeros((n, 2))
-            for i, k in index.items():
-                m = latest.get(i)
-                if m is None or t - m.stamp_s > cfg.stale_s:
-                    _count(counts, "stale_odometry")
-                    std[k] = (cfg.stale_velocity_sigma_m_s, cfg.rate_sigma_rad_s * 10.0)
-                    continue
-                v[k] = m.v_body
-                w[k, 2] = m.yaw_rate_rad_s
-                std[k] = (cfg.velocity_sigma_m_s, cfg.rate_sigma_rad_s)
-            state = predict(state, v, w, t - t_prev, std)
-        t_prev = t if t_prev is None else max(t_prev, t)
-        edges, beta = [], []
-        for target, b in zip(frame.targets, frame.beta_body, strict=False):
-            if target not in index or target == frame.sender:
-                _count(counts, "bearing_to_unknown_vehicle")
-                continue
-            bv = np.asarray(b, dtype=float)
-            if (
-                bv.shape != (3,)
-                or not np.all(np.isfinite(bv))
-                or abs(np.linalg.norm(bv) - 1) > 1e-3
-            ):
-                _count(counts, "bad_bearing")
-                continue
-            edges.append((index[frame.sender], index[target]))
-            beta.append(bv)
-        if not edges:
-            continue
-        state, _ = update(state, np.array(edges), np.array(beta), cfg.bearing_sigma_rad)
-        result.frames += 1
-    result.state = state
+    # the whole recording is known: the team is fixed, and a sorted stream has no late samples
+    loop = EkfLoop(replace(cfg, late_s=math.inf), fixed_ids=ids)
+    stream = [(m.stamp_s, 0, m) for m in motions] + [(f.stamp_s, 1, f) for f in frames]
+    stream.sort(key=lambda s: (s[0], s[1]))  # odometry first at equal stamps
+    for _, _, sample in stream:
+        if isinstance(sample, MotionShare):
+            loop.add_motion(sample)
+        else:
+            loop.add_frame(sample)
+    for word, k in loop.counts.items():
+        counts[word] = counts.get(word, 0) + k
+    result.state = loop.state
+    result.frames = loop.updates
     if frames:
         result.duration_s = float(frames[-1].stamp_s - frames[0].stamp_s)
-        t_end = t_prev if t_prev is not None else frames[-1].stamp_s
+        t_end = loop.t_s if loop.t_s is not None else frames[-1].stamp_s
         for i, log in truth_log.items():  # the truth sample nearest the final estimate's time
             stamp, p, yaw = min(log, key=lambda s: abs(s[0] - t_end))
             result.truth[i] = (p, yaw)

@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 from groundstation.cli import app
 from groundstation.gcs.record import Recorder
 from messages.codec import encode
-from messages.peer import BearingShare, MotionShare
+from messages.peer import BearingShare, MotionShare, TargetBearing
 from messages.sim import Truth
 from onboard.geometry import rot_z
 
@@ -70,9 +70,11 @@ def _record(
                 beta = [r.T @ (p[b] - p[a]) / np.linalg.norm(p[b] - p[a]) for b in others]
                 frame = BearingShare(
                     sender=i, seq=k, stamp_s=t, yaw_rad=yaw[a],
-                    targets=[IDS[b] for b in others] + ([9] if ghost else []),
-                    beta_body=[tuple(float(x) for x in b) for b in beta]
-                    + ([(1.0, 0.0, 0.0)] if ghost else []),
+                    bearings=[
+                        TargetBearing(target=IDS[b], beta_body=tuple(float(x) for x in v))
+                        for b, v in zip(others, beta, strict=True)
+                    ]
+                    + ([TargetBearing(target=9, beta_body=(1.0, 0.0, 0.0))] if ghost else []),
                 )  # fmt: skip
                 rec.zenoh_sample(f"bf/alpha/{i}/peer/peer.bearings", encode(frame), wall)
             if k % 4 == 0:
@@ -101,9 +103,11 @@ def test_replay_recovers_scale_and_poses_of_a_moving_team(tmp_path):
     assert out["skipped"]["undecodable_malformed"] == 3
 
 
-def test_replay_needs_a_recording_and_says_live_mode_is_missing(tmp_path):
-    res = CliRunner().invoke(app, ["gcs", "estimate"])
-    assert res.exit_code == 2 and "not implemented" in res.output
+def test_replay_needs_a_recording_and_live_mode_checks_its_options(tmp_path):
+    res = CliRunner().invoke(app, ["gcs", "estimate", "--zenoh", "none"])
+    assert res.exit_code == 2 and "listens on Zenoh" in res.output
+    res = CliRunner().invoke(app, ["gcs", "estimate", "--duration", "-1"])
+    assert res.exit_code == 2 and "--duration" in res.output
     not_mcap = tmp_path / "x.mcap"
     not_mcap.write_bytes(b"nope")
     res = CliRunner().invoke(app, ["gcs", "estimate", "--replay", str(not_mcap)])
