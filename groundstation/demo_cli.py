@@ -293,7 +293,7 @@ def demo(
             "error: --secure flies the simulated autopilots (not --headless or SITL)", err=True
         )
         raise typer.Exit(2)
-    from onboard.core.config import Mode
+    from messages.vocabulary import Mode
 
     modes = get_args(Mode)
     if mode not in modes:

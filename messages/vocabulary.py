@@ -1,15 +1,54 @@
-"""The words that cross processes, defined once: the alarms an agent or the ground station raises.
+"""The words that cross processes, defined once: alarms, phases, drop reasons and core modes.
 
 An alarm travels as text in :attr:`messages.agent.AgentStatus.alarms`: its kind, and for the
 kinds about one neighbour the neighbour's id after a colon (``peer_lost:3``). Senders build it
 with :func:`alarm_text`, receivers read it with :func:`alarm_kind`, so both ends use the same
 word by construction (they once did not: the daemon raised ``rigidity_lost`` while the ground
 station looked for ``rigidity_low``).
+
+The daemon's :class:`Phase` travels in :attr:`messages.agent.AgentStatus.phase`, the
+:class:`DropReason` words are the keys of its ``dropped`` counters (optionally behind a
+:class:`DropScope` prefix, :func:`drop_key`), and :data:`Mode` names the agent core's modes
+(:data:`FleetMode` the ones a fleet file may choose). All are ``str`` on the wire (a
+``StrEnum`` member *is* its string), so the schema did not change when they became types.
 """
 
 from __future__ import annotations
 
+import typing
 from enum import StrEnum
+from typing import Literal
+
+Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
+"""The agent core's modes (:mod:`onboard.core.modes` maps each to its layers)."""
+MODES: tuple[Mode, ...] = typing.get_args(Mode)
+FleetMode = Literal["active", "random", "formation", "formation-active", "hold"]
+"""The modes a fleet file's ``mode`` may name (paper 003's maintenance is its ``[rigidity]``
+table on top of one of them, not a mode of its own)."""
+FLEET_MODES: tuple[FleetMode, ...] = typing.get_args(FleetMode)
+
+
+class Phase(StrEnum):
+    """The agent daemon's phase (:class:`onboard.daemon.loop.DaemonState`)."""
+
+    CONNECTING = "connecting"
+    """No autopilot link yet."""
+    WAITING = "waiting"
+    """Linked; the estimators warm up (or a readiness check fails)."""
+    READY = "ready"
+    """Ready for ``start``."""
+    FLYING = "flying"
+    """The core's setpoints go to the autopilot."""
+    HOLDING = "holding"
+    """The operator's ``hold`` (or a guard) holds the vehicle."""
+    PILOT = "pilot"
+    """A pilot took the vehicle (a stick mode, :func:`onboard.daemon.guards.takeover_kind`)."""
+    FAILSAFE = "failsafe"
+    """The autopilot left OFFBOARD/GUIDED by itself (its failsafe)."""
+    LANDING = "landing"
+    """The operator's ``land``."""
+    STOPPED = "stopped"
+    """The daemon stopped."""
 
 
 class Alarm(StrEnum):
