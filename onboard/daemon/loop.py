@@ -41,7 +41,7 @@ from messages.limits import (
     POSITION_MAX_M,
     STAMP_FUTURE_MAX_S,
 )
-from messages.vocabulary import Alarm, Phase
+from messages.vocabulary import Alarm, DropReason, DropScope, Phase, drop_key
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
 from onboard.autopilot.states import HOLD_MODE
 from onboard.core.agent import AgentCore
@@ -420,11 +420,11 @@ class AgentDaemon:
         self._status_seq += 1
         dropped = dict(self.drops.snapshot())
         for reason, count in self.core.dropped.items():
-            dropped[f"core_{reason}"] = count
-        for reason, count in signing_rejections(tel.counters).items():
-            dropped[f"mavlink_{reason}"] = count
+            dropped[drop_key(reason, DropScope.CORE)] = count
+        for name, count in signing_rejections(tel.counters).items():
+            dropped[f"{DropScope.MAVLINK.value}_{name}"] = count  # a LinkCounters field
         if tel.implausible:
-            dropped["mavlink_implausible"] = tel.implausible
+            dropped[drop_key(DropReason.IMPLAUSIBLE, DropScope.MAVLINK)] = tel.implausible
         speed = math.sqrt(sum(v * v for v in tel.v_ned))
         agent, self._estimate_healthy = publishable_agent_status(self.core.status())
         alarms = list(self._alarms)
@@ -494,7 +494,7 @@ class AgentDaemon:
                 self._alarms = self._fly(now_s, tel, setpoint)
             except Exception as exc:  # one bad step must never end the daemon (issue 23)
                 outbox = []
-                self._step_failed("step_exception", now_s, exc)
+                self._step_failed(DropReason.STEP_EXCEPTION, now_s, exc)
             if step % status_every == 0:
                 self._publish_status(now_s, tel)
         self._shutdown()
@@ -507,9 +507,9 @@ class AgentDaemon:
             if self.on_status is not None:
                 self.on_status(status)
         except Exception as exc:
-            self._step_failed("status_exception", now_s, exc)
+            self._step_failed(DropReason.STATUS_EXCEPTION, now_s, exc)
 
-    def _step_failed(self, reason: str, now_s: float, exc: Exception) -> None:
+    def _step_failed(self, reason: DropReason, now_s: float, exc: Exception) -> None:
         """An exception escaped one tick: count it (``dropped``), log the first traceback, hold
         (zero setpoint) and raise the ``step_error`` alarm for :data:`STEP_ERROR_ALARM_S`."""
         if reason not in self.drops.snapshot():
@@ -579,7 +579,7 @@ class AgentDaemon:
         if reason is None:
             return True
         self.drops.drop(reason, f"{type(msg).__name__} seq {msg.seq} from {msg.sender}")
-        return reason == "seq_resync"
+        return reason == DropReason.SEQ_RESYNC
 
     def _fly(self, now_s: float, tel: Telemetry, setpoint: Setpoint) -> list[str]:
         """Send the setpoint, or zero when a guard holds (:mod:`onboard.daemon.guards`);
