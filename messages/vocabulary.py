@@ -2,11 +2,11 @@
 
 An alarm travels as text in :attr:`messages.agent.AgentStatus.alarms`: its kind, and for the
 kinds about one neighbour the neighbour's id after a colon (``peer_lost:3``). Senders build it
-with :func:`alarm_text`, receivers read it with :func:`alarm_kind`, so both ends use the same
-word by construction (they once did not: the daemon raised ``rigidity_lost`` while the ground
-station looked for ``rigidity_low``).
+with :func:`alarm_text`, receivers read it with :func:`parse_alarm` (:func:`alarm_kind` for the
+kind alone), so both ends use the same word and format by construction (they once did not: the
+daemon raised ``rigidity_lost`` while the ground station looked for ``rigidity_low``).
 
-The daemon's :class:`Phase` travels in :attr:`messages.agent.AgentStatus.phase`, the
+The daemon's :class:`Phase` travels in :attr:`messages.agent.VehicleStatus.phase`, the
 :class:`DropReason` words are the keys of its ``dropped`` counters (optionally behind a
 :class:`DropScope` prefix, :func:`drop_key`), and :data:`Mode` names the agent core's modes
 (:data:`FleetMode` the ones a fleet file may choose). All are ``str`` on the wire (a
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import typing
 from enum import StrEnum
-from typing import Literal
+from typing import Literal, NamedTuple
 
 Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
 """The agent core's modes (:mod:`onboard.core.modes` maps each to its layers)."""
@@ -114,12 +114,33 @@ def alarm_text(kind: Alarm, peer: int | None = None) -> str:
     return kind.value if peer is None else f"{kind.value}:{peer}"
 
 
-def alarm_kind(text: str) -> Alarm | None:
-    """The kind of an alarm's wire form, or None for a word this version does not know."""
+class AlarmWord(NamedTuple):
+    """One alarm read back from its wire form: its kind, and the neighbour for
+    :data:`PER_PEER` kinds (``None`` for the others)."""
+
+    kind: Alarm
+    peer: int | None
+
+
+def parse_alarm(text: str) -> AlarmWord | None:
+    """The one parser of an alarm's wire form (the inverse of :func:`alarm_text`), or ``None``
+    for a word this version does not know or a per-neighbour kind without a valid id."""
+    word, sep, peer_text = text.partition(":")
     try:
-        return Alarm(text.partition(":")[0])
+        kind = Alarm(word)
     except ValueError:
         return None
+    if kind not in PER_PEER:
+        return AlarmWord(kind, None) if not sep else None
+    if not (peer_text.isascii() and peer_text.isdigit()):
+        return None
+    return AlarmWord(kind, int(peer_text))
+
+
+def alarm_kind(text: str) -> Alarm | None:
+    """The kind of an alarm's wire form, or None for a word this version does not know."""
+    parsed = parse_alarm(text)
+    return None if parsed is None else parsed.kind
 
 
 class DropReason(StrEnum):
