@@ -1,6 +1,6 @@
 """The words that cross processes, defined once: alarms, phases, drop reasons and core modes.
 
-An alarm travels as text in :attr:`messages.agent.AgentStatus.alarms`: its kind, and for the
+An alarm travels as text in :attr:`messages.agent.VehicleStatus.alarms`: its kind, and for the
 kinds about one neighbour the neighbour's id after a colon (``peer_lost:3``). Senders build it
 with :func:`alarm_text`, receivers read it with :func:`parse_alarm` (:func:`alarm_kind` for the
 kind alone), so both ends use the same word and format by construction (they once did not: the
