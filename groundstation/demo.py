@@ -33,6 +33,7 @@ from messages.command import COMMAND_TOPIC, FleetCommand
 from messages.keys import key
 from messages.sim import Truth
 from messages.transport import TransportError, ZenohSettings, loopback_endpoint, open_session
+from messages.vocabulary import Phase
 from onboard.daemon.config import MIN_MAINTENANCE_AGENTS
 from onboard.geometry import FloatArray, IntArray, bearings_body
 from onboard.graph import complete_graph, normalize_edges, reciprocal_pairs
@@ -304,7 +305,9 @@ class Evaluator:
         n = self.plan.n
         beta, _ = bearings_body(p, yaw, self.plan.edges)
         cosines = np.clip(np.sum(beta * self.desired_beta, axis=1), -1.0, 1.0)
-        flying = len(status) == self.plan.n and all(s.phase == "flying" for s in status.values())
+        flying = len(status) == self.plan.n and all(
+            s.phase == Phase.FLYING for s in status.values()
+        )
         s = self.series
         s.t_s.append(t)
         s.p_ned.append(p)

@@ -13,7 +13,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Annotated, get_args
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -293,11 +293,10 @@ def demo(
             "error: --secure flies the simulated autopilots (not --headless or SITL)", err=True
         )
         raise typer.Exit(2)
-    from onboard.core.config import Mode
+    from messages.vocabulary import MODES
 
-    modes = get_args(Mode)
-    if mode not in modes:
-        typer.echo(f"error: --mode must be one of {', '.join(modes)}", err=True)
+    if mode not in MODES:
+        typer.echo(f"error: --mode must be one of {', '.join(MODES)}", err=True)
         raise typer.Exit(2)
     if headless:  # writes summary.json into --out when given (it used to write nothing)
         out_dir = _writable_out(out) if out is not None else None

@@ -9,6 +9,7 @@ from __future__ import annotations
 import msgspec
 
 from messages.codec import Payload
+from messages.vocabulary import Phase
 
 Vec3 = tuple[float, float, float]
 
@@ -99,10 +100,9 @@ class VehicleStatus(Payload, tag="vehicle.status"):
     battery_pct: float | None
     heartbeat_age_s: float
     """Age of the autopilot's last HEARTBEAT as the daemon sees it."""
-    phase: str
-    """Daemon phase: connecting, waiting, ready, flying, holding, pilot (a pilot took the
-    vehicle), failsafe (the autopilot left offboard/guided control by itself), landing,
-    stopped."""
+    phase: Phase
+    """Daemon phase (:class:`messages.vocabulary.Phase`: connecting, waiting, ready, flying,
+    holding, pilot, failsafe, landing, stopped); its value is the wire string."""
     alarms: list[str] = msgspec.field(default_factory=list)
     """Active alarms (:class:`messages.vocabulary.Alarm`), e.g. ``peer_lost:3``,
     ``peer_clock:3``, ``rigidity_lost``, ``estimate_diverging``, ``autopilot_lost``,

@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from messages.limits import ARRAY_ABS_MAX, AgentId, Seq, Stamp
+from messages.vocabulary import DropReason
 
 SCHEMA_VERSION = 4
 """2: :class:`messages.rigidity.RigidityEigenShare` carries its vectors as :data:`F64Array`.
@@ -40,9 +41,9 @@ MAX_PAYLOAD_BYTES = 1 << 20
 
 class MessageError(ValueError):
     """A payload that cannot be accepted: malformed, wrong type or version, non-finite, oversize,
-    or from an unknown sender. ``reason`` is a short machine-friendly word for counters."""
+    or from an unknown sender. ``reason`` is the word its counter is keyed by."""
 
-    def __init__(self, reason: str, detail: str) -> None:
+    def __init__(self, reason: DropReason, detail: str) -> None:
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
         self.detail = detail
@@ -101,7 +102,7 @@ def decode(
     ``nonfinite``, ``out_of_range`` (a bound of :mod:`messages.limits`) or ``unknown_sender``.
     """
     if len(data) > MAX_PAYLOAD_BYTES:
-        raise MessageError("oversize", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
+        raise MessageError(DropReason.OVERSIZE, f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
     try:
         msg = _decoder(kind).decode(data)
     except msgspec.DecodeError as exc:  # (ValidationError is a DecodeError)
@@ -111,21 +112,23 @@ def decode(
         version = raw.get("version") if isinstance(raw, dict) else None
         if isinstance(version, int) and version != SCHEMA_VERSION:
             raise MessageError(
-                "version", f"schema version {version}, expected {SCHEMA_VERSION}"
+                DropReason.VERSION, f"schema version {version}, expected {SCHEMA_VERSION}"
             ) from None
         if isinstance(exc, msgspec.ValidationError):
             if raw is not None and not _all_finite(raw):
                 _check_finite(raw, "payload")
             if _OUT_OF_RANGE.match(str(exc)):
-                raise MessageError("out_of_range", str(exc)) from None
-        raise MessageError("malformed", str(exc)) from None
+                raise MessageError(DropReason.OUT_OF_RANGE, str(exc)) from None
+        raise MessageError(DropReason.MALFORMED, str(exc)) from None
     if msg.version != SCHEMA_VERSION:
-        raise MessageError("version", f"schema version {msg.version}, expected {SCHEMA_VERSION}")
+        raise MessageError(
+            DropReason.VERSION, f"schema version {msg.version}, expected {SCHEMA_VERSION}"
+        )
     if not _all_finite(msg):  # fast check; the slow one names the field
         _check_finite(msg, type(msg).__name__)
     _check_arrays(msg)
     if known_senders is not None and msg.sender not in known_senders:
-        raise MessageError("unknown_sender", f"sender {msg.sender} is not in the fleet")
+        raise MessageError(DropReason.UNKNOWN_SENDER, f"sender {msg.sender} is not in the fleet")
     return msg
 
 
@@ -157,7 +160,7 @@ def _check_arrays(msg: msgspec.Struct) -> None:
         value = getattr(msg, name)
         if len(value) and float(np.abs(value).max()) > ARRAY_ABS_MAX:
             raise MessageError(
-                "out_of_range", f"{type(msg).__name__}.{name}: |entry| > {ARRAY_ABS_MAX:g}"
+                DropReason.OUT_OF_RANGE, f"{type(msg).__name__}.{name}: |entry| > {ARRAY_ABS_MAX:g}"
             )
 
 
@@ -197,11 +200,11 @@ def _all_finite(value: Any) -> bool:
 def _check_finite(value: Any, where: str) -> None:
     if isinstance(value, float):
         if not math.isfinite(value):
-            raise MessageError("nonfinite", f"{where} is {value}")
+            raise MessageError(DropReason.NONFINITE, f"{where} is {value}")
     elif isinstance(value, np.ndarray):
         bad = np.flatnonzero(~np.isfinite(value))
         if len(bad):
-            raise MessageError("nonfinite", f"{where}[{bad[0]}] is {value[bad[0]]}")
+            raise MessageError(DropReason.NONFINITE, f"{where}[{bad[0]}] is {value[bad[0]]}")
     elif isinstance(value, msgspec.Struct):
         for name in value.__struct_fields__:
             _check_finite(getattr(value, name), f"{where}.{name}")

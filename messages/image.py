@@ -26,6 +26,7 @@ import numpy as np
 
 from messages.codec import MAX_PAYLOAD_BYTES, MessageError, Payload
 from messages.keys import key
+from messages.vocabulary import DropReason
 
 IMAGE_TOPIC = "camera/image"
 Encoding = Literal["jpeg", "png"]
@@ -56,18 +57,20 @@ def check_frame(image: Any, width: int | None = None, height: int | None = None)
     """Validate a decoded frame: a non-empty uint8 ``(H, W)`` or ``(H, W, 3)`` array of the
     expected size (when given). Returns it as an ndarray; raises :class:`FrameError`."""
     if image is None:
-        raise FrameError("empty", "no image")
+        raise FrameError(DropReason.EMPTY, "no image")
     arr = np.asarray(image)
     if arr.size == 0:
-        raise FrameError("empty", f"image of shape {arr.shape}")
+        raise FrameError(DropReason.EMPTY, f"image of shape {arr.shape}")
     if arr.dtype != np.uint8:
-        raise FrameError("dtype", f"expected uint8 pixels, got {arr.dtype}")
+        raise FrameError(DropReason.DTYPE, f"expected uint8 pixels, got {arr.dtype}")
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3)):
-        raise FrameError("size", f"expected HxW or HxWx3, got shape {arr.shape}")
+        raise FrameError(DropReason.SIZE, f"expected HxW or HxWx3, got shape {arr.shape}")
     if (width is not None and arr.shape[1] != width) or (
         height is not None and arr.shape[0] != height
     ):
-        raise FrameError("size", f"expected {width}x{height}, got {arr.shape[1]}x{arr.shape[0]}")
+        raise FrameError(
+            DropReason.SIZE, f"expected {width}x{height}, got {arr.shape[1]}x{arr.shape[0]}"
+        )
     return arr
 
 
@@ -89,7 +92,7 @@ def encode_frame(
 
     arr = check_frame(image)
     if encoding not in _EXTENSION:
-        raise FrameError("encoding", f"unknown encoding {encoding!r}")
+        raise FrameError(DropReason.ENCODING, f"unknown encoding {encoding!r}")
     params: list[int] = []
     if encoding == "jpeg":
         params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)]
@@ -97,7 +100,7 @@ def encode_frame(
             params += [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]
     ok, buf = cv2.imencode(_EXTENSION[encoding], arr, params)
     if not ok:
-        raise FrameError("encoding", f"cv2.imencode failed for {encoding}")
+        raise FrameError(DropReason.ENCODING, f"cv2.imencode failed for {encoding}")
     return buf.tobytes()
 
 
@@ -108,14 +111,16 @@ def decode_frame(
     import cv2
 
     if len(data) == 0:
-        raise FrameError("empty", "no image bytes")
+        raise FrameError(DropReason.EMPTY, "no image bytes")
     img = cv2.imdecode(np.frombuffer(bytes(data), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise FrameError("encoding", f"{len(data)} bytes are not a decodable JPEG/PNG image")
+        raise FrameError(
+            DropReason.ENCODING, f"{len(data)} bytes are not a decodable JPEG/PNG image"
+        )
     if img.ndim == 3 and img.shape[2] == 4:
         img = img[:, :, :3]
     if img.dtype != np.uint8:
-        raise FrameError("dtype", f"decoded image has {img.dtype} pixels, expected uint8")
+        raise FrameError(DropReason.DTYPE, f"decoded image has {img.dtype} pixels, expected uint8")
     return check_frame(img, width, height)
 
 
@@ -134,7 +139,9 @@ def image_payload(
     arr = check_frame(image)
     data = encode_frame(arr, encoding, jpeg_quality)
     if len(data) > MAX_PAYLOAD_BYTES - _HEADER_ALLOWANCE:
-        raise FrameError("oversize", f"{encoding} frame of {len(data)} bytes exceeds the limit")
+        raise FrameError(
+            DropReason.OVERSIZE, f"{encoding} frame of {len(data)} bytes exceeds the limit"
+        )
     return Image(
         sender=sender,
         seq=seq,

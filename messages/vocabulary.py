@@ -1,15 +1,54 @@
-"""The words that cross processes, defined once: the alarms an agent or the ground station raises.
+"""The words that cross processes, defined once: alarms, phases, drop reasons and core modes.
 
-An alarm travels as text in :attr:`messages.agent.AgentStatus.alarms`: its kind, and for the
+An alarm travels as text in :attr:`messages.agent.VehicleStatus.alarms`: its kind, and for the
 kinds about one neighbour the neighbour's id after a colon (``peer_lost:3``). Senders build it
-with :func:`alarm_text`, receivers read it with :func:`alarm_kind`, so both ends use the same
-word by construction (they once did not: the daemon raised ``rigidity_lost`` while the ground
-station looked for ``rigidity_low``).
+with :func:`alarm_text`, receivers read it with :func:`parse_alarm` (:func:`alarm_kind` for the
+kind alone), so both ends use the same word and format by construction (they once did not: the
+daemon raised ``rigidity_lost`` while the ground station looked for ``rigidity_low``).
+
+The daemon's :class:`Phase` travels in :attr:`messages.agent.VehicleStatus.phase`, the
+:class:`DropReason` words are the keys of its ``dropped`` counters (optionally behind a
+:class:`DropScope` prefix, :func:`drop_key`), and :data:`Mode` names the agent core's modes
+(:data:`FleetMode` the ones a fleet file may choose). All are ``str`` on the wire (a
+``StrEnum`` member *is* its string), so the schema did not change when they became types.
 """
 
 from __future__ import annotations
 
+import typing
 from enum import StrEnum
+from typing import Literal, NamedTuple
+
+Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
+"""The agent core's modes (:mod:`onboard.core.modes` maps each to its layers)."""
+MODES: tuple[Mode, ...] = typing.get_args(Mode)
+FleetMode = Literal["active", "random", "formation", "formation-active", "hold"]
+"""The modes a fleet file's ``mode`` may name (paper 003's maintenance is its ``[rigidity]``
+table on top of one of them, not a mode of its own)."""
+FLEET_MODES: tuple[FleetMode, ...] = typing.get_args(FleetMode)
+
+
+class Phase(StrEnum):
+    """The agent daemon's phase (:class:`onboard.daemon.loop.DaemonState`)."""
+
+    CONNECTING = "connecting"
+    """No autopilot link yet."""
+    WAITING = "waiting"
+    """Linked; the estimators warm up (or a readiness check fails)."""
+    READY = "ready"
+    """Ready for ``start``."""
+    FLYING = "flying"
+    """The core's setpoints go to the autopilot."""
+    HOLDING = "holding"
+    """The operator's ``hold`` (or a guard) holds the vehicle."""
+    PILOT = "pilot"
+    """A pilot took the vehicle (a stick mode, :func:`onboard.daemon.guards.takeover_kind`)."""
+    FAILSAFE = "failsafe"
+    """The autopilot left OFFBOARD/GUIDED by itself (its failsafe)."""
+    LANDING = "landing"
+    """The operator's ``land``."""
+    STOPPED = "stopped"
+    """The daemon stopped."""
 
 
 class Alarm(StrEnum):
@@ -75,9 +114,132 @@ def alarm_text(kind: Alarm, peer: int | None = None) -> str:
     return kind.value if peer is None else f"{kind.value}:{peer}"
 
 
-def alarm_kind(text: str) -> Alarm | None:
-    """The kind of an alarm's wire form, or None for a word this version does not know."""
+class AlarmWord(NamedTuple):
+    """One alarm read back from its wire form: its kind, and the neighbour for
+    :data:`PER_PEER` kinds (``None`` for the others)."""
+
+    kind: Alarm
+    peer: int | None
+
+
+def parse_alarm(text: str) -> AlarmWord | None:
+    """The one parser of an alarm's wire form (the inverse of :func:`alarm_text`), or ``None``
+    for a word this version does not know or a per-neighbour kind without a valid id."""
+    word, sep, peer_text = text.partition(":")
     try:
-        return Alarm(text.partition(":")[0])
+        kind = Alarm(word)
     except ValueError:
         return None
+    if kind not in PER_PEER:
+        return AlarmWord(kind, None) if not sep else None
+    if not (peer_text.isascii() and peer_text.isdigit()):
+        return None
+    return AlarmWord(kind, int(peer_text))
+
+
+def alarm_kind(text: str) -> Alarm | None:
+    """The kind of an alarm's wire form, or None for a word this version does not know."""
+    parsed = parse_alarm(text)
+    return None if parsed is None else parsed.kind
+
+
+class DropReason(StrEnum):
+    """Why an input was counted and dropped: the keys of ``dropped`` counters
+    (:attr:`messages.agent.VehicleStatus.dropped`), behind a :class:`DropScope` when the
+    input was not a peer message (:func:`drop_key`)."""
+
+    OVERSIZE = "oversize"
+    """The codec: larger than ``MAX_PAYLOAD_BYTES``."""
+    MALFORMED = "malformed"
+    """The codec (not msgpack, not the schema) or a payload's inner consistency."""
+    OUT_OF_RANGE = "out_of_range"
+    """The codec: a field outside its bound (:mod:`messages.limits`)."""
+    VERSION = "version"
+    """The codec: another schema version."""
+    UNKNOWN_SENDER = "unknown_sender"
+    """The codec: a sender not in the fleet."""
+    NONFINITE = "nonfinite"
+    """The codec (or a camera): a NaN or an infinity."""
+    SENDER_MISMATCH = "sender_mismatch"
+    """A payload on another sender's key."""
+    BAD_KEY = "bad_key"
+    """A key expression this fleet does not use."""
+    INJECTED_LOSS = "injected_loss"
+    """Fault injection (``zenoh.inject_loss``)."""
+    FOREIGN = "foreign"
+    """A command for another agent, or a topic this version does not know."""
+    WRONG_FLEET = "wrong_fleet"
+    """Ground station: a key under another fleet."""
+    SEQ_RESYNC = "seq_resync"
+    """Replay window: a sender restarted its sequence numbers (the message is admitted)."""
+    SEQ_REPLAY = "seq_replay"
+    """Replay window: a sequence number seen before."""
+    SEQ_WINDOW = "seq_window"
+    """Replay window: a sequence number outside the window."""
+    STEP_EXCEPTION = "step_exception"
+    """An exception escaped one core tick."""
+    STATUS_EXCEPTION = "status_exception"
+    """An exception escaped building the status."""
+    CLOCK_JUMP = "clock_jump"
+    """A simulation or autopilot time implausibly far from the daemon's (:attr:`Alarm.CLOCK_JUMP`)."""
+    CLOCK_RESYNC = "clock_resync"
+    """The daemon followed a new simulation timeline (:attr:`Alarm.CLOCK_RESYNC`)."""
+    NOT_NEIGHBOUR = "not_neighbour"
+    """Core: a payload from an agent that is no neighbour for its kind."""
+    UNKNOWN_TYPE = "unknown_type"
+    """Core: a payload kind no layer of this mode handles."""
+    FUTURE_STAMP = "future_stamp"
+    """A stamp further ahead than ``STAMP_FUTURE_MAX_S``."""
+    TIME_BACKWARDS = "time_backwards"
+    """Core: a tick earlier than the previous one."""
+    NONFINITE_OWN = "nonfinite_own"
+    """Core: its own measurements are not finite."""
+    BAD_BEARING = "bad_bearing"
+    """Core: a bearing that is not a finite unit vector."""
+    UNKNOWN_EDGE = "unknown_edge"
+    """Core: an SfM share for an edge it does not observe."""
+    UNKNOWN_NAME = "unknown_name"
+    """Core: an SfM share with a name it does not know."""
+    SFM_HOLE = "sfm_hole"
+    """Core: SfM frames in a gap of the history (not used)."""
+    UNKNOWN_TARGET = "unknown_target"
+    """Camera: a bearing to a vehicle outside the fleet."""
+    NOT_UNIT = "not_unit"
+    """Camera: a bearing that is not a unit vector."""
+    SENDER = "sender"
+    """Camera: an image from another agent on this agent's key."""
+    ID = "id"
+    """Camera: a camera id the rig does not have."""
+    NO_ATTITUDE = "no_attitude"
+    """Camera: no autopilot attitude near the frame's capture time."""
+    ATTITUDE_ERROR = "attitude_error"
+    """Camera: the attitude interpolation raised."""
+    DEVICE_READ = "device_read"
+    """Camera: the capture device's read failed."""
+    EMPTY = "empty"
+    """Camera: an image without pixels or bytes (:class:`messages.image.FrameError`)."""
+    DTYPE = "dtype"
+    """Camera: pixels that are not uint8."""
+    SIZE = "size"
+    """Camera: an image of the wrong shape or size."""
+    ENCODING = "encoding"
+    """Camera: an image encoding that is unknown or does not decode."""
+    IMPLAUSIBLE = "implausible"
+    """MAVLink: finite but physically impossible telemetry."""
+
+
+class DropScope(StrEnum):
+    """Where a dropped input came from when it was not a peer message: the key's prefix."""
+
+    CAMERA = "camera"
+    CLOCK = "clock"
+    COMMAND = "command"
+    OWN = "own"
+    OWN_STATUS = "own_status"
+    CORE = "core"
+    MAVLINK = "mavlink"
+
+
+def drop_key(reason: DropReason, scope: DropScope | None = None) -> str:
+    """The counter key on the wire: ``reason``, or ``scope_reason`` (``camera_not_unit``)."""
+    return reason.value if scope is None else f"{scope.value}_{reason.value}"

@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from onboard.core.config import AgentConfig, Mode, build_config
+from messages.vocabulary import Mode
+from onboard.core.config import AgentConfig, build_config
 from onboard.geometry import FloatArray, bearings_body, rot_z
 from sim.runner import Recording, RunnerConfig, run
 

@@ -23,6 +23,7 @@ from messages.command import ACK_TOPIC, COMMAND_TOPIC, CommandAck, FleetCommand
 from messages.keys import ALIVE_TOPIC, PEER_TOPIC, STATUS_TOPIC, fleet_keys, is_sim_key, parse_key
 from messages.peer import PeerPayload
 from messages.sim import CAMERA_TOPIC, TRUTH_TOPIC, CameraBearings, SimClock, SimStep, Truth
+from messages.vocabulary import DropReason
 
 TOPIC_TYPES: dict[str, Any] = {
     STATUS_TOPIC: VehicleStatus,
@@ -63,25 +64,29 @@ def classify(fleet: str, key: str, data: bytes) -> Decoded:
     """Decode one sample of fleet ``fleet``; raises :class:`MessageError` (see module doc)."""
     parts = key.split("/", 3)
     if len(parts) == 4 and parts[0] == "bf" and parts[1] != fleet:
-        raise MessageError("wrong_fleet", f"{key} is not under fleet {fleet!r}")
+        raise MessageError(DropReason.WRONG_FLEET, f"{key} is not under fleet {fleet!r}")
     if is_sim_key(key):
         kind = SIM_TOPIC_TYPES.get(parts[3])
         if kind is None:
-            raise MessageError("foreign", f"unknown simulator topic in {key}")
+            raise MessageError(DropReason.FOREIGN, f"unknown simulator topic in {key}")
         return Decoded(None, parts[3], decode(data, kind))
     try:
         _fleet, agent_id, topic = parse_key(key)
     except ValueError as exc:
-        raise MessageError("foreign", str(exc)) from None
+        raise MessageError(DropReason.FOREIGN, str(exc)) from None
     kind = payload_type(topic)
     if kind is None:
-        raise MessageError("foreign", f"unknown topic {topic!r} in {key}")
+        raise MessageError(DropReason.FOREIGN, f"unknown topic {topic!r} in {key}")
     payload = decode(data, kind)
     owner = payload.target if isinstance(payload, FleetCommand) else payload.sender
     if owner != agent_id:
-        raise MessageError("sender_mismatch", f"{type(payload).__name__} of {owner} on {key}")
+        raise MessageError(
+            DropReason.SENDER_MISMATCH, f"{type(payload).__name__} of {owner} on {key}"
+        )
     if isinstance(payload, CameraBearings) and len(payload.targets) != len(payload.beta_body):
-        raise MessageError("malformed", f"{key}: {len(payload.targets)} targets, bearings differ")
+        raise MessageError(
+            DropReason.MALFORMED, f"{key}: {len(payload.targets)} targets, bearings differ"
+        )
     return Decoded(agent_id, topic, payload)
 
 
@@ -128,7 +133,7 @@ class ZenohState:
     converged: the monitor started late)."""
     max_acks: int = 1000
 
-    def count(self, reason: str) -> None:
+    def count(self, reason: DropReason) -> None:
         self.counters[reason] = self.counters.get(reason, 0) + 1
 
     def agent(self, agent_id: int, t_s: float) -> AgentTelemetry:
@@ -164,7 +169,7 @@ class ZenohState:
     def fold_alive(self, key: str, alive: bool, t_s: float) -> int | None:
         agent_id = alive_agent(self.fleet, key)
         if agent_id is None:
-            self.count("foreign")
+            self.count(DropReason.FOREIGN)
             return None
         a = self.agent(agent_id, t_s)
         a.alive, a.alive_s = alive, t_s
@@ -221,7 +226,7 @@ class ZenohListener:
             data = sample.payload.to_bytes()
         except Exception:  # a payload zenoh cannot hand over: count it, never raise
             with self.lock:
-                self.state.count("malformed")
+                self.state.count(DropReason.MALFORMED)
             return
         t_wall = time.time()
         with self.lock:

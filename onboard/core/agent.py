@@ -35,6 +35,7 @@ from messages.peer import (
     SfmEstimate,
 )
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
+from messages.vocabulary import DropReason
 from onboard.core.bearings import finite
 from onboard.core.config import AgentConfig
 from onboard.core.layer import Command, Own, Vec3
@@ -153,7 +154,7 @@ class AgentCore:
         cfg = self.config
         dt = 0.0 if self._t is None else t_s - self._t
         if dt < 0.0:
-            self.dropped.count("time_backwards")
+            self.dropped.count(DropReason.TIME_BACKWARDS)
             if dt < -STAMP_FUTURE_MAX_S:  # the clock was reset (a restarted simulator)
                 self._forget_time()
             dt = 0.0
@@ -169,7 +170,7 @@ class AgentCore:
         except (TypeError, ValueError, IndexError):
             u_i, w_i, yaw_own = (math.nan,) * 3, math.nan, math.nan
         if not (finite(u_i) and math.isfinite(w_i) and math.isfinite(yaw_own)):
-            self.dropped.count("nonfinite_own")
+            self.dropped.count(DropReason.NONFINITE_OWN)
             return Setpoint(v_body=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0), []
         odo_s = own.odometry_stamp_s
         if odo_s is None or not math.isfinite(odo_s) or odo_s > t_s + cfg.safety.peer_timeout_s:

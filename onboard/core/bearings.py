@@ -17,6 +17,7 @@ from typing import Any
 from messages.codec import Payload
 from messages.limits import stamp_ahead
 from messages.peer import BearingShare, TargetBearing
+from messages.vocabulary import DropReason
 from onboard.core.config import Graph
 from onboard.core.layer import Command, Own, Vec3
 from onboard.core.peers import Drops, Route
@@ -84,7 +85,7 @@ class Bearings:
             if b.stamp_s <= self._last_frame_s or b.target not in self.out_targets:
                 continue
             if stamp_ahead(b.stamp_s, own.raw.t_s):  # would blind the camera for good
-                self._drops.count("future_stamp")
+                self._drops.count(DropReason.FUTURE_STAMP)
                 continue
             newest = max(newest, b.stamp_s)  # a bad detection is counted once, not every step
             try:
@@ -92,7 +93,7 @@ class Bearings:
             except (TypeError, ValueError, IndexError):
                 beta = (math.nan,) * 3
             if not finite(beta) or abs(beta[0] ** 2 + beta[1] ** 2 + beta[2] ** 2 - 1.0) > 1e-3:
-                self._drops.count("bad_bearing")
+                self._drops.count(DropReason.BAD_BEARING)
                 continue
             fresh.append((b.target, float(b.stamp_s), beta))
         self._last_frame_s = newest

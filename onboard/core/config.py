@@ -19,9 +19,9 @@ from typing import Any, Literal
 
 import msgspec
 
+from messages.vocabulary import MODES, Mode
+
 Vec3 = tuple[float, float, float]
-Mode = Literal["active", "random", "formation", "formation-active", "hold", "rigidity-tracking"]
-MODES: tuple[Mode, ...] = typing.get_args(Mode)
 
 
 class Graph(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

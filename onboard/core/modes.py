@@ -13,8 +13,9 @@ from enum import Enum
 
 import msgspec
 
+from messages.vocabulary import Mode
 from onboard.core.bearings import Bearings
-from onboard.core.config import AgentConfig, Mode
+from onboard.core.config import AgentConfig
 from onboard.core.layer import Layer
 from onboard.core.motion import Active, Formation, FormationActive, Hold, Random
 from onboard.core.peers import Drops, PeerTable

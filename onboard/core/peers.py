@@ -19,14 +19,15 @@ import msgspec
 
 from messages.codec import Payload
 from messages.limits import stamp_ahead
+from messages.vocabulary import DropReason
 
 P = TypeVar("P")
 
 
-class Drops(dict[str, int]):
-    """Counts of dropped inputs by reason (``not_neighbour``, ``malformed``, ...)."""
+class Drops(dict[DropReason, int]):
+    """Counts of dropped inputs by reason (:class:`messages.vocabulary.DropReason`)."""
 
-    def count(self, reason: str, n: int = 1) -> None:
+    def count(self, reason: DropReason, n: int = 1) -> None:
         """Count ``n`` drops for ``reason``."""
         self[reason] = self.get(reason, 0) + n
 
@@ -68,22 +69,22 @@ class PeerTable:
         kind = type(msg)
         route = self.routes.get(kind)
         if j not in (self.neighbours if route is None else route.senders):
-            self.drops.count("not_neighbour")
+            self.drops.count(DropReason.NOT_NEIGHBOUR)
             return
         if route is None:
-            self.drops.count("unknown_type")
+            self.drops.count(DropReason.UNKNOWN_TYPE)
             return
         if stamp_ahead(msg.stamp_s, t_s):  # "the newest by stamp" would keep it for good
-            self.drops.count("future_stamp")
+            self.drops.count(DropReason.FUTURE_STAMP)
             return
         self.heard[j] = t_s
         take = route.take
         if take is None:
-            self.drops.count("unknown_type")
+            self.drops.count(DropReason.UNKNOWN_TYPE)
         elif take(j, msg):
             self._latest[kind][j] = msg
         else:
-            self.drops.count("malformed")
+            self.drops.count(DropReason.MALFORMED)
 
     def is_fresh(self, stamp_s: float, t_s: float) -> bool:
         """Whether data stamped ``stamp_s`` is still usable at ``t_s``."""

@@ -38,6 +38,7 @@ from messages.peer import (
     SfmEdgeEstimate,
     SfmEstimate,
 )
+from messages.vocabulary import DropReason
 from onboard.control import active_scale as act
 from onboard.core.bearings import MAX_ODOMETRY_GAP_S, Bearings
 from onboard.core.config import Graph, ScaleGains
@@ -154,7 +155,7 @@ class Scale:
         for entry in msg.entries:
             a, b, lam, stamp = entry.first, entry.second, entry.excitation, entry.stamp_s
             if (a, b) not in known:  # only the fleet's edges: the table stays bounded
-                self._drops.count("unknown_edge")
+                self._drops.count(DropReason.UNKNOWN_EDGE)
                 continue
             if stamp > msg.stamp_s + STAMP_FUTURE_MAX_S:  # measured after it was sent
                 ahead = True
@@ -163,13 +164,13 @@ class Scale:
             if prev is None or stamp > prev[0]:
                 table[(a, b)] = (stamp, lam)
         if ahead:
-            self._drops.count("future_stamp")
+            self._drops.count(DropReason.FUTURE_STAMP)
         return True
 
     def _take_consensus(self, j: int, msg: ConsensusState) -> bool:
         for entry in msg.states:
             if entry.name not in CONSENSUS_NAMES:
-                self._drops.count("unknown_name")
+                self._drops.count(DropReason.UNKNOWN_NAME)
                 continue
             self.cons_in.setdefault(entry.name, {})[j] = (msg.stamp_s, entry.x, entry.z)
         return True
@@ -259,7 +260,7 @@ class Scale:
                 # a hole in the own or the peer's odometry (a stalled process, lost messages):
                 # do not integrate across it, and restart the bearing state after it
                 if edge.beta_hat is not None:
-                    self._drops.count("sfm_hole")  # the frames inside it are not used
+                    self._drops.count(DropReason.SFM_HOLE)  # the frames inside it are not used
                 edge.resync()
                 while frames and frames[0][0] <= s:
                     frames.popleft()

@@ -17,6 +17,7 @@ from messages.agent import BearingMeasurement
 from messages.codec import MessageError, decode
 from messages.limits import stamp_ahead
 from messages.sim import CameraBearings, camera_key
+from messages.vocabulary import DropReason, DropScope
 from onboard.daemon.peers import DropCounter, PeerLink
 
 
@@ -54,22 +55,24 @@ class SimCameraSource:
         try:
             msg = decode(sample.payload.to_bytes(), CameraBearings)
         except MessageError as exc:
-            self.drops.drop(f"camera_{exc.reason}", exc.detail)
+            self.drops.drop(exc.reason, exc.detail, DropScope.CAMERA)
             return
         if msg.sender != self.id or len(msg.targets) != len(msg.beta_body):
-            self.drops.drop("camera_malformed", f"frame from {msg.sender}")
+            self.drops.drop(DropReason.MALFORMED, f"frame from {msg.sender}", DropScope.CAMERA)
             return
         now_s = self.clock() if self.clock is not None else None
         if stamp_ahead(msg.stamp_s, now_s):
-            self.drops.drop("camera_future_stamp", f"frame stamped {msg.stamp_s} at {now_s}")
+            self.drops.drop(
+                DropReason.FUTURE_STAMP, f"frame stamped {msg.stamp_s} at {now_s}", DropScope.CAMERA
+            )
             return
         frame = []
         for target, beta in zip(msg.targets, msg.beta_body, strict=True):
             norm = math.sqrt(sum(b * b for b in beta))
             if target not in self.known or target == self.id:
-                self.drops.drop("camera_unknown_target", f"target {target}")
+                self.drops.drop(DropReason.UNKNOWN_TARGET, f"target {target}", DropScope.CAMERA)
             elif abs(norm - 1.0) > 1e-3:
-                self.drops.drop("camera_not_unit", f"|beta| = {norm}")
+                self.drops.drop(DropReason.NOT_UNIT, f"|beta| = {norm}", DropScope.CAMERA)
             else:
                 frame.append(BearingMeasurement(target=target, beta_body=beta, stamp_s=msg.stamp_s))
         with self._lock:

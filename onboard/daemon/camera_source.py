@@ -49,6 +49,7 @@ from messages.agent import BearingMeasurement
 from messages.codec import MessageError, decode
 from messages.image import Image, image_from_payload, image_key
 from messages.limits import stamp_ahead
+from messages.vocabulary import DropReason, DropScope
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.vision.markers import Detection
 from onboard.vision.pipeline import VisionPipeline
@@ -210,28 +211,40 @@ class CameraImageSource:
         try:
             msg = decode(data, Image)
         except MessageError as exc:
-            self.drops.drop(f"camera_{exc.reason}", exc.detail)
+            self.drops.drop(exc.reason, exc.detail, DropScope.CAMERA)
             return
         if msg.sender != self.id:
-            self.drops.drop("camera_sender", f"image from {msg.sender} on agent {self.id}'s key")
+            self.drops.drop(
+                DropReason.SENDER,
+                f"image from {msg.sender} on agent {self.id}'s key",
+                DropScope.CAMERA,
+            )
             return
         if not 0 <= msg.camera_id < len(self.pipelines):
             self.drops.drop(
-                "camera_id", f"camera {msg.camera_id}: the rig has {len(self.pipelines)}"
+                DropReason.ID,
+                f"camera {msg.camera_id}: the rig has {len(self.pipelines)}",
+                DropScope.CAMERA,
             )
             return
         if self.clock is not None and stamp_ahead(msg.stamp_s, self.clock()):
-            self.drops.drop("camera_future_stamp", f"image stamped {msg.stamp_s}")
+            self.drops.drop(
+                DropReason.FUTURE_STAMP, f"image stamped {msg.stamp_s}", DropScope.CAMERA
+            )
             return
         self._queue(_Frame(msg.camera_id, msg.stamp_s, payload=msg))
 
     def on_frame(self, camera_id: int, stamp_s: float, image: Any) -> None:
         """One frame from a local device (an array, or ``None`` for a failed read)."""
         if not 0 <= camera_id < len(self.pipelines):
-            self.drops.drop("camera_id", f"camera {camera_id}: the rig has {len(self.pipelines)}")
+            self.drops.drop(
+                DropReason.ID,
+                f"camera {camera_id}: the rig has {len(self.pipelines)}",
+                DropScope.CAMERA,
+            )
             return
         if not math.isfinite(stamp_s):
-            self.drops.drop("camera_nonfinite", f"stamp {stamp_s}")
+            self.drops.drop(DropReason.NONFINITE, f"stamp {stamp_s}", DropScope.CAMERA)
             return
         self._queue(_Frame(camera_id, stamp_s, image=image))
 
@@ -274,7 +287,7 @@ class CameraImageSource:
         try:
             s = self.attitude()
         except Exception as exc:  # the link is not our business: never let it stop the camera
-            self.drops.drop("camera_attitude_error", repr(exc))
+            self.drops.drop(DropReason.ATTITUDE_ERROR, repr(exc), DropScope.CAMERA)
             return
         if s is not None:
             self.history.add(s)
@@ -290,7 +303,7 @@ class CameraImageSource:
             image = frame.image if frame.payload is None else image_from_payload(frame.payload)
             detections = pipe.process(image)
         except MessageError as exc:  # FrameError: empty, size, dtype, encoding, oversize
-            self.drops.drop(f"camera_{exc.reason}", exc.detail)
+            self.drops.drop(exc.reason, exc.detail, DropScope.CAMERA)
             return
         self.stats.frames += 1
         self.stats.process_s.append(time.perf_counter() - t0)
@@ -298,9 +311,13 @@ class CameraImageSource:
         kept = []
         for d in detections:
             if d.vehicle_id not in self.known or d.vehicle_id == self.id:
-                self.drops.drop("camera_unknown_target", f"marker of vehicle {d.vehicle_id}")
+                self.drops.drop(
+                    DropReason.UNKNOWN_TARGET, f"marker of vehicle {d.vehicle_id}", DropScope.CAMERA
+                )
             elif not np.all(np.isfinite(d.bearing_body)):
-                self.drops.drop("camera_nonfinite", f"bearing to {d.vehicle_id}")
+                self.drops.drop(
+                    DropReason.NONFINITE, f"bearing to {d.vehicle_id}", DropScope.CAMERA
+                )
             elif not inside_image(d, pipe.camera.width, pipe.camera.height):
                 self.stats.cut += 1
             else:
@@ -329,7 +346,11 @@ class CameraImageSource:
         self._set = {}
         rp = self.history.at(stamp)
         if rp is None:
-            self.drops.drop("camera_no_attitude", f"no autopilot attitude near t={stamp:.3f}")
+            self.drops.drop(
+                DropReason.NO_ATTITUDE,
+                f"no autopilot attitude near t={stamp:.3f}",
+                DropScope.CAMERA,
+            )
             return
         ids, beta, _ = self.pipelines[0].bearings_level(dets, rp[0], rp[1])
         out = tuple(
@@ -396,7 +417,9 @@ class DeviceCapture:
             if not ok:
                 if self.is_file:
                     return
-                self.source.drops.drop("camera_device_read", "VideoCapture.read failed")
+                self.source.drops.drop(
+                    DropReason.DEVICE_READ, "VideoCapture.read failed", DropScope.CAMERA
+                )
                 self._stop.wait(self.retry_s)
                 continue
             if stamp is None:

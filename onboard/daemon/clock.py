@@ -15,7 +15,10 @@ from typing import Any, Protocol
 
 from messages.codec import MessageError, decode
 from messages.sim import SIM_SENDER, SimClock
-from messages.vocabulary import Alarm
+from messages.vocabulary import Alarm, DropReason, DropScope
+
+Drop = Callable[[DropReason, str, DropScope | None], None]
+"""Where a dropped clock sample is counted (:meth:`onboard.daemon.peers.DropCounter.drop`)."""
 
 
 class Clock(Protocol):
@@ -101,7 +104,7 @@ class SimClockFollower(Clock):
     def __init__(
         self,
         max_extrapolation_s: float = MAX_EXTRAPOLATION_S,
-        drop: Callable[[str, str], None] | None = None,
+        drop: Drop | None = None,
         max_jump_s: float = MAX_CLOCK_JUMP_S,
     ) -> None:
         self.max_extrapolation_s = max_extrapolation_s
@@ -121,10 +124,10 @@ class SimClockFollower(Clock):
         ahead = max(self._speedup, 1.0) * (now - mono_from) + self.max_jump_s
         return t_from - self.max_jump_s <= t_sim_s <= t_from + ahead
 
-    def _reject(self, reason: str, detail: str, now: float) -> None:
+    def _reject(self, reason: DropReason, detail: str, now: float) -> None:
         self._fault = (reason, now)
         if self._drop is not None:
-            self._drop(reason, detail)
+            self._drop(reason, detail, None)
 
     def update(self, t_sim_s: float, speedup: float, lockstep: bool) -> None:
         """A ``SimClock`` sample (already decoded and checked, :func:`sim_clock_handler`)."""
@@ -144,10 +147,12 @@ class SimClockFollower(Clock):
                     self._candidate = c = (t_sim_s, now, 1)
                 if c[2] < RESYNC_SAMPLES:
                     self._reject(
-                        "clock_jump", f"simulation time {t_sim_s} after {self._t_sim}", now
+                        DropReason.CLOCK_JUMP, f"simulation time {t_sim_s} after {self._t_sim}", now
                     )
                     return
-                self._reject("clock_resync", f"simulation time {self._t_sim} -> {t_sim_s}", now)
+                self._reject(
+                    DropReason.CLOCK_RESYNC, f"simulation time {self._t_sim} -> {t_sim_s}", now
+                )
                 self._last = -math.inf  # the new timeline may lie behind: follow it
             elif self._t_sim is not None and t_sim_s < self._t_sim - 1e-9:
                 return  # a late duplicate: never run backwards
@@ -164,7 +169,9 @@ class SimClockFollower(Clock):
                 return
             now = time.monotonic()
             if t_sim_s > self._extrapolated() + self.max_jump_s:
-                self._reject("clock_jump", f"autopilot time {t_sim_s} at {self._t_sim}", now)
+                self._reject(
+                    DropReason.CLOCK_JUMP, f"autopilot time {t_sim_s} at {self._t_sim}", now
+                )
                 return
             self._t_sim, self._t_mono = t_sim_s, now
 
@@ -207,9 +214,7 @@ def autopilot_stamp(t_boot_s: float | None, age_s: float, now_s: float, sim: boo
     return now_s - age_s if math.isfinite(age_s) else None
 
 
-def sim_clock_handler(
-    follower: SimClockFollower, drop: Callable[[str, str], None]
-) -> Callable[[Any], None]:
+def sim_clock_handler(follower: SimClockFollower, drop: Drop) -> Callable[[Any], None]:
     """The Zenoh handler of the simulation-clock key: every sample through the checked codec
     (size, schema version, finiteness and ranges, :mod:`messages.limits`) and from the
     simulator's sender id only, else counted as ``clock_<reason>`` and dropped."""
@@ -218,7 +223,7 @@ def sim_clock_handler(
         try:
             msg = decode(sample.payload.to_bytes(), SimClock, known_senders=(SIM_SENDER,))
         except MessageError as exc:
-            drop(f"clock_{exc.reason}", exc.detail)
+            drop(exc.reason, exc.detail, DropScope.CLOCK)
             return
         follower.update(msg.t_s, msg.speedup, msg.lockstep)
 

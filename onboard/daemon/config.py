@@ -106,12 +106,10 @@ import msgspec
 from messages.formation import Formation, FormationError, load_formation
 from messages.keys import key
 from messages.transport import ZenohSettings, check_endpoint, loopback_endpoint, with_mutual_tls
+from messages.vocabulary import FleetMode
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
-
-Mode = Literal["active", "random", "formation", "formation-active", "hold"]
-
 
 MIN_MAINTENANCE_AGENTS = 4
 """Rigidity maintenance needs this many agents (:func:`load_fleet`)."""
@@ -192,7 +190,7 @@ class SecuritySection(msgspec.Struct, forbid_unknown_fields=True):
 class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
     formation: str
     fleet: str = "alpha"
-    mode: Mode = "formation-active"
+    mode: FleetMode = "formation-active"
     clock: Literal["wall", "sim"] = "wall"
     auto_start: bool = False
     takeoff_alt_m: float = 5.0

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from messages.agent import Setpoint
-from messages.vocabulary import Alarm, alarm_text
+from messages.vocabulary import Alarm, Phase, alarm_text
 from onboard.autopilot.base import Flavour
 from onboard.control.envelope import bound_down_velocity, bound_horizontal_velocity
 
@@ -59,7 +59,7 @@ class GuardInput:
     """What the guards look at in one tick (the daemon's clock; NED about the autopilot's local
     origin). The defaults are a healthy vehicle flying a zero setpoint."""
 
-    phase: str = "flying"
+    phase: Phase = Phase.FLYING
     """The daemon's phase (:data:`onboard.daemon.loop.PHASES`)."""
     setpoint: Setpoint = ZERO_SETPOINT
     """The core's setpoint (heading frame, :mod:`onboard.autopilot.base`)."""
@@ -174,9 +174,9 @@ class PilotTakeoverGuard:
     ``failsafe`` in phase ``failsafe`` (:func:`takeover_kind` told them apart)."""
 
     def check(self, inp: GuardInput) -> Verdict:
-        if inp.phase == "pilot":
+        if inp.phase == Phase.PILOT:
             return Verdict(alarms=(Alarm.PILOT_TAKEOVER.value,))
-        if inp.phase == "failsafe":
+        if inp.phase == Phase.FAILSAFE:
             return Verdict(alarms=(Alarm.FAILSAFE.value,))
         return PASS
 
@@ -196,7 +196,7 @@ STALL_MEMORY_S = 5.0
 
 def takeover_kind(
     flavour: Flavour | None, mode: str, since_stall_s: float, since_link_lost_s: float
-) -> str:
+) -> Phase:
     """Who took the vehicle out of OFFBOARD/GUIDED: ``"pilot"`` or ``"failsafe"``.
 
     A failsafe when the daemon stalled (a tick gap, e.g. SIGSTOP: PX4 fails over after
@@ -205,10 +205,10 @@ def takeover_kind(
     hold, land or return mode, or one a forged HEARTBEAT shows); a pilot only when a healthy
     stream was replaced by a stick mode."""
     if since_stall_s <= STALL_MEMORY_S or since_link_lost_s <= STALL_MEMORY_S:
-        return "failsafe"
+        return Phase.FAILSAFE
     if flavour is not None and mode in PILOT_MODES[flavour]:
-        return "pilot"
-    return "failsafe"
+        return Phase.PILOT
+    return Phase.FAILSAFE
 
 
 class FiniteSetpointGuard:
@@ -306,7 +306,7 @@ def decide(guards: Guards, inp: GuardInput) -> Decision:
         hold = hold or v.action is Action.HOLD
     if hold:
         return Decision(True, ZERO_SETPOINT, tuple(alarms))
-    if inp.phase == "flying":
+    if inp.phase == Phase.FLYING:
         for g in guards.envelope:
             v = g.check(inp)
             alarms.extend(v.alarms)

@@ -41,7 +41,7 @@ from messages.limits import (
     POSITION_MAX_M,
     STAMP_FUTURE_MAX_S,
 )
-from messages.vocabulary import Alarm
+from messages.vocabulary import Alarm, DropReason, DropScope, Phase, drop_key
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
 from onboard.autopilot.states import HOLD_MODE
 from onboard.core.agent import AgentCore
@@ -76,12 +76,8 @@ from onboard.rigidity.bearing import ibr_r3s1
 
 log = logging.getLogger(__name__)
 
-PHASES = (
-    "connecting", "waiting", "ready", "flying", "holding", "pilot", "failsafe", "landing",
-    "stopped",
-)  # fmt: skip
-"""``pilot``: a pilot took the vehicle (a stick mode); ``failsafe``: the autopilot left
-OFFBOARD/GUIDED by itself (:func:`onboard.daemon.guards.takeover_kind`)."""
+PHASES: tuple[Phase, ...] = tuple(Phase)
+"""Every phase (:class:`messages.vocabulary.Phase`, defined there once)."""
 STALL_TICK_GAP_S = 1.0
 """A gap between two core ticks this long (wall time) is a stall of the daemon (SIGSTOP, a
 frozen machine): the autopilot's offboard-loss failsafe may have acted meanwhile."""
@@ -201,11 +197,11 @@ def publishable_agent_status(a: AgentStatus) -> tuple[AgentStatus, bool]:
 class DaemonState:
     """What the two threads share (guarded by ``lock``)."""
 
-    phase: str = "connecting"
+    phase: Phase = Phase.CONNECTING
     detail: str = ""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def set(self, phase: str, detail: str = "") -> None:
+    def set(self, phase: Phase, detail: str = "") -> None:
         with self.lock:
             if phase != self.phase:
                 log.info("phase %s -> %s %s", self.phase, phase, detail)
@@ -213,7 +209,7 @@ class DaemonState:
                 log.info("phase %s: %s", phase, detail)
             self.phase, self.detail = phase, detail
 
-    def get(self) -> str:
+    def get(self) -> Phase:
         with self.lock:
             return self.phase
 
@@ -284,18 +280,18 @@ class AgentDaemon:
             except LinkError as exc:
                 if is_permanent(exc):  # e.g. the udpin port is taken: ends the process (issue 23)
                     raise
-                self.state.set("connecting", str(exc))
+                self.state.set(Phase.CONNECTING, str(exc))
                 self.stop_event.wait(1.0)
         if self.stop_event.is_set():
             return
-        self.state.set("waiting", "estimator warm-up")
+        self.state.set(Phase.WAITING, "estimator warm-up")
         self.link.request_streams()
         while not self.stop_event.is_set():
             ready = self.link.wait_ready(timeout_s=5.0)
             if ready.ok:
                 break
-            self.state.set("waiting", "; ".join(ready.reasons) or ready.detail)
-        self.state.set("ready")
+            self.state.set(Phase.WAITING, "; ".join(ready.reasons) or ready.detail)
+        self.state.set(Phase.READY)
         if c.auto_start:
             self._actions.put(("takeoff_and_start", None))
         while not self.stop_event.is_set():
@@ -319,7 +315,7 @@ class AgentDaemon:
                 result = step()
                 if not result.ok:
                     detail = f"{result.action}: {result.result_name} {'; '.join(result.reasons)}"
-                    self.state.set("ready", detail)
+                    self.state.set(Phase.READY, detail)
                     return False, detail
             action = "start"
         if action == "start":
@@ -327,7 +323,7 @@ class AgentDaemon:
             if not tel.in_air:
                 return False, "not in the air: arm and take off first"
             if (
-                self.state.get() == "pilot"
+                self.state.get() == Phase.PILOT
                 and tel.flavour is not None
                 and tel.mode in PILOT_MODES[tel.flavour]
             ):
@@ -339,15 +335,15 @@ class AgentDaemon:
             result = link.start_velocity_control()
             if not result.ok:
                 return False, f"velocity control refused: {result.result_name} {result.detail}"
-            self.state.set("flying")
+            self.state.set(Phase.FLYING)
             return True, "flying"
         if action == "hold":
             link.set_setpoint(ZERO_SETPOINT)
-            self.state.set("holding")
+            self.state.set(Phase.HOLDING)
             return True, "holding"
         if action in ("land", "stop"):
             link.set_setpoint(ZERO_SETPOINT)
-            self.state.set("landing")
+            self.state.set(Phase.LANDING)
             result = link.land()
             link.stop_streaming("landing")
             return result.ok, f"land: {result.result_name}"
@@ -365,7 +361,7 @@ class AgentDaemon:
                 # act at once on the setpoint, then let the flight thread do the rest
                 self.link.set_setpoint(ZERO_SETPOINT)
                 if cmd.action == "hold":
-                    self.state.set("holding")
+                    self.state.set(Phase.HOLDING)
             self._actions.put((cmd.action, cmd))
 
     def _update_peers(self, now_s: float) -> None:
@@ -418,11 +414,11 @@ class AgentDaemon:
         self._status_seq += 1
         dropped = dict(self.drops.snapshot())
         for reason, count in self.core.dropped.items():
-            dropped[f"core_{reason}"] = count
-        for reason, count in signing_rejections(tel.counters).items():
-            dropped[f"mavlink_{reason}"] = count
+            dropped[drop_key(reason, DropScope.CORE)] = count
+        for name, count in signing_rejections(tel.counters).items():
+            dropped[f"{DropScope.MAVLINK.value}_{name}"] = count  # a LinkCounters field
         if tel.implausible:
-            dropped["mavlink_implausible"] = tel.implausible
+            dropped[drop_key(DropReason.IMPLAUSIBLE, DropScope.MAVLINK)] = tel.implausible
         speed = math.sqrt(sum(v * v for v in tel.v_ned))
         agent, self._estimate_healthy = publishable_agent_status(self.core.status())
         alarms = list(self._alarms)
@@ -494,7 +490,7 @@ class AgentDaemon:
                 self._alarms = self._fly(now_s, tel, setpoint)
             except Exception as exc:  # one bad step must never end the daemon (issue 23)
                 outbox = []
-                self._step_failed("step_exception", now_s, exc)
+                self._step_failed(DropReason.STEP_EXCEPTION, now_s, exc)
             if step % status_every == 0:
                 self._publish_status(now_s, tel)
         self._shutdown()
@@ -507,9 +503,9 @@ class AgentDaemon:
             if self.on_status is not None:
                 self.on_status(status)
         except Exception as exc:
-            self._step_failed("status_exception", now_s, exc)
+            self._step_failed(DropReason.STATUS_EXCEPTION, now_s, exc)
 
-    def _step_failed(self, reason: str, now_s: float, exc: Exception) -> None:
+    def _step_failed(self, reason: DropReason, now_s: float, exc: Exception) -> None:
         """An exception escaped one tick: count it (``dropped``), log the first traceback, hold
         (zero setpoint) and raise the ``step_error`` alarm for :data:`STEP_ERROR_ALARM_S`."""
         if reason not in self.drops.snapshot():
@@ -580,7 +576,7 @@ class AgentDaemon:
         if reason is None:
             return True
         self.drops.drop(reason, f"{type(msg).__name__} seq {msg.seq} from {msg.sender}")
-        return reason == "seq_resync"
+        return reason == DropReason.SEQ_RESYNC
 
     def _fly(self, now_s: float, tel: Telemetry, setpoint: Setpoint) -> list[str]:
         """Send the setpoint, or zero when a guard holds (:mod:`onboard.daemon.guards`);
@@ -590,7 +586,7 @@ class AgentDaemon:
         for event in self.link.events():
             if event.kind == "link_lost":
                 self._link_lost_t = event.t_s
-            if event.kind == "stream_stopped" and self.state.get() == "flying":
+            if event.kind == "stream_stopped" and self.state.get() == Phase.FLYING:
                 kind = takeover_kind(
                     tel.flavour,
                     tel.mode,
@@ -600,7 +596,7 @@ class AgentDaemon:
                 self.state.set(kind, f"{event.detail} ({kind})")
         phase = self.state.get()
         decision = decide(self.guards, self._guard_input(now_s, tel, setpoint, lost, skewed, phase))
-        if phase == "flying":
+        if phase == Phase.FLYING:
             if decision.hold:
                 self.link.set_setpoint(ZERO_SETPOINT)
             else:
@@ -614,7 +610,7 @@ class AgentDaemon:
         setpoint: Setpoint,
         lost: list[int],
         skewed: list[int],
-        phase: str,
+        phase: Phase,
     ) -> GuardInput:
         """What the guards look at this tick."""
         return GuardInput(
@@ -662,13 +658,13 @@ class AgentDaemon:
 
     def _shutdown(self) -> None:
         c = self.fleet.config
-        if self.state.get() in ("flying", "holding"):
+        if self.state.get() in (Phase.FLYING, Phase.HOLDING):
             self.link.set_setpoint(ZERO_SETPOINT)
             time.sleep(0.3)
             if c.on_exit == "land":
                 self.link.land()
             self.link.stop_streaming("daemon exit")
-        self.state.set("stopped")
+        self.state.set(Phase.STOPPED)
         summary = self.metrics.summary()
         summary["bearing_to_wire"] = percentiles_ms(list(self.link.setpoint_ages_s))
         log.info("metrics %s", json.dumps(summary))

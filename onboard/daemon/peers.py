@@ -24,6 +24,7 @@ from messages.command import ACK_TOPIC, COMMAND_TOPIC, CommandAck, FleetCommand
 from messages.keys import PEER_TOPIC, STATUS_TOPIC, alive_key, key, parse_key
 from messages.peer import PeerPayload
 from messages.transport import ZenohSettings, open_session
+from messages.vocabulary import DropReason, DropScope, drop_key
 
 log = logging.getLogger(__name__)
 
@@ -35,12 +36,14 @@ class DropCounter:
         self._lock = threading.Lock()
         self._counts: Counter[str] = Counter()
 
-    def drop(self, reason: str, detail: str = "") -> None:
+    def drop(self, reason: DropReason, detail: str = "", scope: DropScope | None = None) -> None:
+        """Count one drop under its wire key (:func:`messages.vocabulary.drop_key`)."""
+        key = drop_key(reason, scope)
         with self._lock:
-            first = self._counts[reason] == 0
-            self._counts[reason] += 1
+            first = self._counts[key] == 0
+            self._counts[key] += 1
         if first:
-            log.warning("dropping input (%s): %s (logged once per reason)", reason, detail)
+            log.warning("dropping input (%s): %s (logged once per reason)", key, detail)
 
     def snapshot(self) -> dict[str, int]:
         with self._lock:
@@ -119,12 +122,12 @@ class PeerLink:
             with self._lock:
                 lost = self._loss_rng.random() < self.inject_loss
             if lost:
-                self.drops.drop("injected_loss", "fault injection (zenoh.inject_loss)")
+                self.drops.drop(DropReason.INJECTED_LOSS, "fault injection (zenoh.inject_loss)")
                 return
         try:
             _, key_id, _ = parse_key(str(sample.key_expr))
         except ValueError as exc:
-            self.drops.drop("bad_key", str(exc))
+            self.drops.drop(DropReason.BAD_KEY, str(exc))
             return
         if key_id == self.id:
             return  # our own publication, echoed back by the session
@@ -134,7 +137,7 @@ class PeerLink:
             self.drops.drop(exc.reason, f"{sample.key_expr}: {exc.detail}")
             return
         if msg.sender != key_id:
-            self.drops.drop("sender_mismatch", f"{sample.key_expr}: sender {msg.sender}")
+            self.drops.drop(DropReason.SENDER_MISMATCH, f"{sample.key_expr}: sender {msg.sender}")
             return
         with self._lock:
             self._inbox.append(msg)
@@ -143,10 +146,12 @@ class PeerLink:
         try:
             cmd = decode(sample.payload.to_bytes(), FleetCommand)
         except MessageError as exc:
-            self.drops.drop(f"command_{exc.reason}", exc.detail)
+            self.drops.drop(exc.reason, exc.detail, DropScope.COMMAND)
             return
         if cmd.target != self.id:
-            self.drops.drop("command_foreign", f"command for agent {cmd.target}")
+            self.drops.drop(
+                DropReason.FOREIGN, f"command for agent {cmd.target}", DropScope.COMMAND
+            )
             return
         with self._lock:
             self._commands.append(cmd)
@@ -194,7 +199,7 @@ class PeerLink:
             try:
                 data = encode(p)
             except MessageError as exc:  # never send a non-finite estimate to the fleet
-                self.drops.drop(f"own_{exc.reason}", f"{tag}: {exc.detail}")
+                self.drops.drop(exc.reason, f"{tag}: {exc.detail}", DropScope.OWN)
                 continue
             self._put(key(self.fleet, self.id, f"{PEER_TOPIC}/{kind}"), data)
             sent += 1
@@ -204,7 +209,7 @@ class PeerLink:
         try:
             data = encode(status)
         except MessageError as exc:
-            self.drops.drop(f"own_status_{exc.reason}", exc.detail)
+            self.drops.drop(exc.reason, exc.detail, DropScope.OWN_STATUS)
             return
         self._put(key(self.fleet, self.id, STATUS_TOPIC), data)
 

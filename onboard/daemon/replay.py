@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass, field
 
 from messages.limits import stamp_ahead
+from messages.vocabulary import DropReason
 
 SEQ_WINDOW = 10_000
 """Largest accepted step of ``seq`` between two samples of one kind: 100 s of a 100 Hz core (a
@@ -50,7 +51,9 @@ class SeqWindow:
     resync_max_age_s: float = RESYNC_MAX_AGE_S
     _tracks: dict[tuple[int, type], _Track] = field(default_factory=dict)
 
-    def admit(self, sender: int, kind: type, seq: int, stamp_s: float, now_s: float) -> str | None:
+    def admit(
+        self, sender: int, kind: type, seq: int, stamp_s: float, now_s: float
+    ) -> DropReason | None:
         """``None`` to accept the sample, else the reason to drop it (``seq_replay``,
         ``seq_window``); ``seq_resync`` when it is accepted on a new timeline."""
         key = (sender, kind)
@@ -74,8 +77,8 @@ class SeqWindow:
             if track.candidates >= self.resync_samples:
                 track.last_seq, track.candidate_seq, track.candidates = seq, None, 0
                 track.last_stamp_s = stamp_s
-                return "seq_resync"
-        return "seq_replay" if step <= 0 else "seq_window"
+                return DropReason.SEQ_RESYNC
+        return DropReason.SEQ_REPLAY if step <= 0 else DropReason.SEQ_WINDOW
 
     def __len__(self) -> int:
         return len(self._tracks)

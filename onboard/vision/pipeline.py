@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from messages.image import FrameError, check_frame
+from messages.vocabulary import DropReason
 from onboard.geometry import FloatArray
 from onboard.vision.camera import CameraModel
 from onboard.vision.discs import DiscDetector, DiscDetectorConfig
@@ -57,7 +58,7 @@ class VisionPipeline:
                 found += self.tags.detect(frame, cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
         else:
             if self.discs.specs and not self.tags.specs:
-                raise FrameError("size", "colour discs need a 3-channel frame, got grey")
+                raise FrameError(DropReason.SIZE, "colour discs need a 3-channel frame, got grey")
             found += self.tags.detect(frame, frame)
         return best_per_vehicle([d for d in found if d.quality >= self.min_quality])
 

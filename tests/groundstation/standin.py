@@ -25,8 +25,11 @@ from messages.agent import AgentStatus, VehicleStatus
 from messages.codec import MessageError, decode, encode
 from messages.command import ACK_TOPIC, COMMAND_TOPIC, CommandAck, FleetCommand
 from messages.keys import STATUS_TOPIC, alive_key, key
+from messages.vocabulary import Phase
 
-PHASE_OF_ACTION = {"start": "flying", "hold": "holding", "land": "landing", "stop": "stopped"}
+PHASE_OF_ACTION = {
+    "start": Phase.FLYING, "hold": Phase.HOLDING, "land": Phase.LANDING, "stop": Phase.STOPPED,
+}  # fmt: skip
 
 
 @dataclass
@@ -43,7 +46,7 @@ class StandinConfig:
 
 
 def scripted_status(
-    cfg: StandinConfig, agent_id: int, t_s: float, seq: int, phase: str
+    cfg: StandinConfig, agent_id: int, t_s: float, seq: int, phase: Phase
 ) -> VehicleStatus:
     """The status agent ``agent_id`` publishes ``t_s`` seconds after start (pure)."""
     e = cfg.e0 * math.exp(-t_s / cfg.tau_s)
@@ -87,7 +90,7 @@ class Standin:
     def __init__(self, session: Any, cfg: StandinConfig) -> None:
         self.session = session
         self.cfg = cfg
-        self.phase = dict.fromkeys(cfg.ids, "ready")
+        self.phase = dict.fromkeys(cfg.ids, Phase.READY)
         self.commands: list[FleetCommand] = []
         self._stop = threading.Event()
         self._tokens = [
