@@ -292,6 +292,11 @@ def demo(
             "error: --secure flies the simulated autopilots (not --headless or SITL)", err=True
         )
         raise typer.Exit(2)
+    from messages.optional import require
+
+    # the plots, the recording and the camera pipeline: a missing extra says so before the run
+    for module in ("matplotlib", "mcap", *(("cv2",) if bearings == "camera" else ())):
+        require(module)
     from onboard.agent_config import Mode
 
     modes = get_args(Mode)
