@@ -8,6 +8,10 @@ far less sensitive to other load on the machine than a wall-clock share: a daemo
 simulation time, so its work per simulated second does not depend on how fast the simulator
 is allowed to run (``--speedup``).
 
+``--decode`` times instead ``messages.codec.decode`` of every peer payload kind (a sample
+built from each kind's field types: six neighbours, six-entry arrays), microseconds per
+message: the validation path every one of a daemon's ~1,150 peer callbacks a second takes.
+
 ``--before PATH`` measures another checkout (e.g. ``git worktree add --detach /tmp/fp-before
 main``) in the same invocation, first, with the same script (this file run with that
 checkout first on ``PYTHONPATH``), and prints both rows side by side.
@@ -101,10 +105,64 @@ def measure(vehicles: int, duration_s: float, speedup: float, seed: int) -> dict
     }
 
 
+def _sample(t: Any) -> Any:
+    """A valid plain value (MessagePack-able) of a ``msgspec.inspect`` type: mid-range floats,
+    six entries per list, six-entry float64 arrays."""
+    import msgspec.inspect as mi
+
+    if isinstance(t, mi.FloatType):
+        return 0.5
+    if isinstance(t, mi.IntType):
+        return 1
+    if isinstance(t, mi.BoolType):
+        return True
+    if isinstance(t, mi.StrType):
+        return "x"
+    if isinstance(t, (mi.ListType, mi.VarTupleType)):
+        return [_sample(t.item_type) for _ in range(6)]
+    if isinstance(t, mi.TupleType):
+        return [_sample(x) for x in t.item_types]
+    if isinstance(t, mi.UnionType):
+        return _sample(next(x for x in t.types if not isinstance(x, mi.NoneType)))
+    if isinstance(t, mi.CustomType):
+        return np.full(6, 0.5).tobytes()
+    if isinstance(t, mi.LiteralType):
+        return t.values[0]
+    raise TypeError(f"no sample for {t!r}")
+
+
+def measure_decode(repeat: int = 20_000) -> dict[str, Any]:
+    """Microseconds per ``decode(data, PeerPayload)`` of each peer kind, best of 5."""
+    from typing import get_args
+
+    import msgspec
+    import msgspec.inspect as mi
+
+    from messages.codec import decode
+    from messages.peer import PeerPayload
+
+    per_kind = {}
+    for kind in get_args(PeerPayload):
+        info = mi.type_info(kind)
+        raw = {f.encode_name: _sample(f.type) for f in info.fields if f.name != "version"}
+        raw[info.tag_field] = info.tag
+        data = msgspec.msgpack.encode(raw)
+        decode(data, PeerPayload)  # valid, and the decoder cached
+        best = float("inf")
+        for _ in range(5):
+            t0 = time.perf_counter()
+            for _ in range(repeat):
+                decode(data, PeerPayload)
+            best = min(best, (time.perf_counter() - t0) / repeat)
+        per_kind[kind.__name__] = 1e6 * best
+    return {"decode_us": per_kind}
+
+
 def _measure_checkout(path: Path, args: argparse.Namespace) -> dict[str, Any]:
     """Run this script's ``--json`` measurement with ``path`` first on the import path."""
     env = dict(os.environ, PYTHONPATH=str(path))
-    cmd = [sys.executable, str(HERE), "--json", "--vehicles", str(args.vehicles),
+    cmd = [sys.executable, str(HERE), "--json", *(["--decode"] if args.decode else []),
+           "--vehicles", str(args.vehicles),
            "--duration", str(args.duration), "--speedup", str(args.speedup),
            "--seed", str(args.seed)]  # fmt: skip
     out = subprocess.run(cmd, env=env, cwd=path, capture_output=True, text=True, check=True)
@@ -120,6 +178,19 @@ def _row(name: str, m: dict[str, Any]) -> str:
     )
 
 
+def _decode_table(args: argparse.Namespace) -> None:
+    rows = [("this", _measure_checkout(HERE.parent.parent, args)["decode_us"])]
+    if args.before is not None:
+        rows.insert(0, ("before", _measure_checkout(args.before.resolve(), args)["decode_us"]))
+    kinds = list(rows[-1][1])
+    print(f"{'decode us/message':<22}" + "".join(f"{name:>9}" for name, _ in rows)
+          + ("    ratio" if len(rows) == 2 else ""))  # fmt: skip
+    for k in kinds:
+        vals = [r.get(k, float("nan")) for _, r in rows]
+        ratio = f"{vals[1] / vals[0]:>9.2f}" if len(vals) == 2 else ""
+        print(f"{k:<22}" + "".join(f"{v:>9.2f}" for v in vals) + ratio)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vehicles", type=int, default=6)
@@ -127,10 +198,17 @@ def main() -> None:
     parser.add_argument("--speedup", type=float, default=0.5, help="simulator speed (x real)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--before", type=Path, help="another checkout to measure first")
+    parser.add_argument("--decode", action="store_true", help="time the peer decode instead")
     parser.add_argument("--json", action="store_true", help="one JSON line (used by --before)")
     args = parser.parse_args()
     if args.json:
-        print(json.dumps(measure(args.vehicles, args.duration, args.speedup, args.seed)))
+        if args.decode:
+            print(json.dumps(measure_decode()))
+        else:
+            print(json.dumps(measure(args.vehicles, args.duration, args.speedup, args.seed)))
+        return
+    if args.decode:
+        _decode_table(args)
         return
     print(f"load average before: {os.getloadavg()[0]:.2f}; {args.vehicles} daemons, "
           f"{args.duration:g} sim s at {args.speedup:g}x, CPU after {WARMUP_S:g} s warm-up")  # fmt: skip
