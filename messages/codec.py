@@ -79,11 +79,30 @@ def _dec_hook(kind: Any, value: Any) -> Any:
 _encoder = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
 
 
+_HUGE_F64 = (b"\xcb\x7f", b"\xcb\xff")
+"""How a MessagePack float64 (``0xcb`` + 8 big-endian bytes) of magnitude >= 2**1009 starts,
+which every NaN and +-inf is (all exponent bits ones). msgspec writes every Python float as a
+float64; the prefix can also occur inside other bytes (a ``bin`` array, a string), which only
+sends :func:`encode` down its slow, exact path."""
+
+
 def encode(payload: Payload) -> bytes:
-    """Serialize a payload to MessagePack bytes (raises :class:`MessageError` on NaN/inf)."""
-    if not _all_finite(payload):
+    """Serialize a payload to MessagePack bytes (raises :class:`MessageError` on NaN/inf).
+
+    The finiteness check scans the encoded bytes for a non-finite float64 (two C substring
+    searches) and the float64 arrays in numpy, instead of walking every float in Python; a hit
+    (or a type whose floats the bytes may not show, :func:`_encode_plan`) runs the exact walk,
+    which names the field."""
+    data = _encoder.encode(payload)
+    arrays, walk = _encode_plan(type(payload))
+    if (
+        walk
+        or _HUGE_F64[0] in data
+        or _HUGE_F64[1] in data
+        or any(not np.isfinite(getattr(payload, name)).all() for name in arrays)
+    ):
         _check_finite(payload, "payload")
-    return _encoder.encode(payload)
+    return data
 
 
 def decode(
@@ -177,6 +196,41 @@ def _unbounded_fields(kind: type[msgspec.Struct]) -> tuple[str, ...]:
     info = msgspec.inspect.type_info(kind)
     assert isinstance(info, msgspec.inspect.StructType)
     return tuple(f.name for f in info.fields if not _finite_by_msgspec(f.type, set()))
+
+
+@lru_cache(maxsize=256)
+def _encode_plan(kind: type[msgspec.Struct]) -> tuple[tuple[str, ...], bool]:
+    """For :func:`encode`: the top-level float64 array fields of a payload type, and whether
+    its values may hold floats that do not appear as MessagePack float64 (an array below the
+    top level, ``Any``, an unknown type): then every payload of the type is walked in Python."""
+    info = msgspec.inspect.type_info(kind)
+    assert isinstance(info, msgspec.inspect.StructType)
+    arrays = _array_fields(kind)
+    seen: set[int] = {id(info)}
+    walk = not all(f.name in arrays or _floats_on_the_wire(f.type, seen) for f in info.fields)
+    return arrays, walk
+
+
+def _floats_on_the_wire(t: msgspec.inspect.Type, seen: set[int]) -> bool:
+    """Whether every float inside a value of type ``t`` is encoded as a MessagePack float."""
+    mi = msgspec.inspect
+    if isinstance(t, (mi.FloatType, mi.IntType, mi.BoolType, mi.StrType, mi.NoneType,
+                      mi.BytesType, mi.ByteArrayType, mi.LiteralType, mi.EnumType)):  # fmt: skip
+        return True
+    if isinstance(t, (mi.ListType, mi.VarTupleType, mi.SetType, mi.FrozenSetType)):
+        return _floats_on_the_wire(t.item_type, seen)
+    if isinstance(t, mi.TupleType):
+        return all(_floats_on_the_wire(x, seen) for x in t.item_types)
+    if isinstance(t, mi.DictType):
+        return _floats_on_the_wire(t.key_type, seen) and _floats_on_the_wire(t.value_type, seen)
+    if isinstance(t, mi.UnionType):
+        return all(_floats_on_the_wire(x, seen) for x in t.types)
+    if isinstance(t, mi.StructType):
+        if id(t) in seen:
+            return True
+        seen.add(id(t))
+        return all(_floats_on_the_wire(f.type, seen) for f in t.fields)
+    return False  # arrays below the top level, Any, dataclasses, ...
 
 
 def _finite_by_msgspec(t: msgspec.inspect.Type, seen: set[int]) -> bool:

@@ -180,3 +180,24 @@ def test_every_peer_payload_is_validated_by_msgspec_alone():
 
     kinds = get_args(PeerPayload)
     assert kinds and all(_unbounded_fields(k) == () for k in kinds)
+
+
+def test_encode_finds_every_nonfinite_and_only_those():
+    # the encoded-bytes scan (issue 27): NaN/inf at any position of a flat or nested payload
+    rng = np.random.default_rng(0)
+    for bad in (float("nan"), float("inf"), float("-inf")):
+        for n in (1, 5, 40):
+            items = [float(x) for x in rng.normal(size=n) * 10.0 ** rng.integers(-300, 300, size=n)]
+            items[int(rng.integers(n))] = bad
+            with pytest.raises(MessageError, match="nonfinite"):
+                encode(Ping(sender=1, value=1.0, items=items))
+            with pytest.raises(MessageError, match="nonfinite"):
+                encode(Ping(sender=1, value=bad))
+    # finite values whose bytes look like a huge float64 inside a bin array: still encoded
+    tricky = np.frombuffer(b"\x00\x00\x00\x00\xcb\x7f\xf0\x3f" * 2, dtype="<f8")
+    assert np.isfinite(tricky).all()
+    data = encode(Vector(sender=1, values=tricky))
+    assert b"\xcb\x7f\xf0" in data
+    np.testing.assert_array_equal(decode(data, Vector).values, tricky)
+    huge = Ping(sender=1, value=1.7e308, items=[-1.7e308, 5e-324])  # finite extremes
+    assert decode(encode(huge), Ping) == huge
