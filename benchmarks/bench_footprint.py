@@ -8,6 +8,10 @@ far less sensitive to other load on the machine than a wall-clock share: a daemo
 simulation time, so its work per simulated second does not depend on how fast the simulator
 is allowed to run (``--speedup``).
 
+The bearing -> setpoint latency (p50 over the daemons / worst p99, wall ms) is what every
+daemon logs on exit; it is comparable only at ``--speedup 1`` (slower, the core ticks are
+stretched in wall time).
+
 ``--decode`` times instead ``messages.codec.decode`` of every peer payload kind (a sample
 built from each kind's field types: six neighbours, six-entry arrays), microseconds per
 message: the validation path every one of a daemon's ~1,150 peer callbacks a second takes.
@@ -89,6 +93,7 @@ def measure(vehicles: int, duration_s: float, speedup: float, seed: int) -> dict
             vehicles, "px4", duration_s, Path(tmp), seed=seed, speedup=speedup, on_tick=on_tick,
             record=False,
         )  # fmt: skip
+        logged = _agent_metrics(Path(tmp), vehicles)
     if marks["start"] is None or marks["end"] is None:
         raise RuntimeError("no daemon samples: the mission did not run past the warm-up")
     (t0, c0), (t1, c1) = marks["start"], marks["end"]
@@ -100,9 +105,28 @@ def measure(vehicles: int, duration_s: float, speedup: float, seed: int) -> dict
         "rss_mb": float(np.mean(rss)),
         "rss_max_mb": float(np.max(rss)),
         "sim_s": t1 - t0,
+        # bearing -> setpoint on the wire (wall ms, as the daemons log it, onboard/daemon/metrics)
+        "latency_p50_ms": _pooled(logged, "p50_ms", np.median),
+        "latency_p99_ms": _pooled(logged, "p99_ms", np.max),
         "scale_error": summary.get("final_scale_error"),
         "landed": summary.get("landed"),
     }
+
+
+def _agent_metrics(out: Path, n: int) -> list[dict[str, Any]]:
+    """The ``metrics {...}`` line each daemon logs on exit (as benchmarks/bench_daemon.py)."""
+    found = []
+    for i in range(n):
+        lines = [x for x in (out / f"agent{i}.log").read_text().splitlines() if "metrics {" in x]
+        if lines:
+            found.append(json.loads(lines[-1].split("metrics ", 1)[1]))
+    return found
+
+
+def _pooled(metrics: list[dict[str, Any]], key: str, pool: Any) -> float | None:
+    values = [m["bearing_to_wire"].get(key) for m in metrics]
+    values = [v for v in values if v is not None]
+    return float(pool(values)) if values else None
 
 
 def _sample(t: Any) -> Any:
@@ -171,9 +195,11 @@ def _measure_checkout(path: Path, args: argparse.Namespace) -> dict[str, Any]:
 
 def _row(name: str, m: dict[str, Any]) -> str:
     err = m["scale_error"]
+    lat = [m.get(k) for k in ("latency_p50_ms", "latency_p99_ms")]
+    lat_txt = "-" if None in lat else f"{lat[0]:.0f} / {lat[1]:.0f}"
     return (
         f"{name:<10} {m['cpu_s_per_sim_s']:>9.3f} {m['cpu_max']:>7.3f} {m['rss_mb']:>8.1f} "
-        f"{m['rss_max_mb']:>7.1f} {m['sim_s']:>6.1f} "
+        f"{m['rss_max_mb']:>7.1f} {m['sim_s']:>6.1f} {lat_txt:>13} "
         f"{'-' if err is None else f'{100 * err:.2f}%':>9} {m['landed']!s:>6}"
     )
 
@@ -218,7 +244,7 @@ def main() -> None:
         rows.append(("before", _measure_checkout(args.before.resolve(), args)))
     rows.append(("this", _measure_checkout(HERE.parent.parent, args)))
     print(f"{'checkout':<10} {'cpu s/s':>9} {'max':>7} {'RSS MB':>8} {'max':>7} {'sim s':>6} "
-          f"{'scale err':>9} {'landed':>6}")  # fmt: skip
+          f"{'b->wire ms':>13} {'scale err':>9} {'landed':>6}")  # fmt: skip
     for name, m in rows:
         print(_row(name, m))
     if len(rows) == 2:
