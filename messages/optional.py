@@ -41,7 +41,7 @@ def missing_extra_message(module: str) -> str | None:
         return None
     extra, what = EXTRAS[top]
     return (
-        f"{top} is not installed; {what} needs it: pip install 'bearingflock[{extra}]' "
+        f"{top} is not installed (needed for {what}): pip install 'bearingflock[{extra}]' "
         f"(or bearingflock[all])"
     )
 
