@@ -5,9 +5,9 @@ real MAVLink and Zenoh, real time) and reads what every daemon logs on exit
 (``onboard/daemon/metrics.py``):
 
 * bearing -> wire latency: for every velocity setpoint sent to the autopilot, the age of the
-  newest camera frame it is based on (capture, Zenoh, core tick, 20 Hz setpoint stream);
-  the baseline in the same run is the setpoint stream period alone (50 ms: a setpoint waits
-  0-50 ms for the stream however fast the rest is, so p50 >= 25 ms);
+  newest camera frame it is based on (capture, Zenoh, core tick, the ``[rates] setpoint``
+  stream, 50 Hz); the baseline in the same run is the setpoint stream period alone (20 ms: a
+  setpoint waits 0-20 ms for the stream however fast the rest is, so p50 >= 10 ms);
 * CPU per agent process (fraction of one core) and the core tick's own wall time;
 * whether the machine keeps up: p99 of how late the 100 Hz core ticks start, and the
   simulator's overrun count (steps that started late).
@@ -30,8 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from groundstation.demo import run_demo
+from onboard.daemon.config import Rates
 
-STREAM_PERIOD_MS = 50.0
+STREAM_PERIOD_MS = 1000.0 / Rates().setpoint  # the fleet file's default stream
 CORE_PERIOD_MS = 10.0
 
 

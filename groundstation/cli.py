@@ -46,8 +46,18 @@ def _root() -> None:
 
 
 def main() -> None:
-    """Console-script entry point."""
-    app()
+    """Console-script entry point. A command that needs an optional dependency the install
+    lacks ends on one line naming the extra that brings it (``messages.optional``), exit 2."""
+    from messages.optional import missing_extra_message
+
+    try:
+        app()
+    except ModuleNotFoundError as exc:
+        message = missing_extra_message(exc.name or "")
+        if message is None:
+            raise
+        typer.echo(f"error: {message}", err=True)
+        raise SystemExit(2) from None
 
 
 if __name__ == "__main__":

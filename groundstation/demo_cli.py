@@ -293,7 +293,12 @@ def demo(
             "error: --secure flies the simulated autopilots (not --headless or SITL)", err=True
         )
         raise typer.Exit(2)
+    from messages.optional import require
     from messages.vocabulary import MODES
+
+    # the plots, the recording and the camera pipeline: a missing extra says so before the run
+    for module in ("matplotlib", "mcap", *(("cv2",) if bearings == "camera" else ())):
+        require(module)
 
     if mode not in MODES:
         typer.echo(f"error: --mode must be one of {', '.join(MODES)}", err=True)

@@ -83,11 +83,30 @@ def _dec_hook(kind: Any, value: Any) -> Any:
 _encoder = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
 
 
+_HUGE_F64 = (b"\xcb\x7f", b"\xcb\xff")
+"""How a MessagePack float64 (``0xcb`` + 8 big-endian bytes) of magnitude >= 2**1009 starts,
+which every NaN and +-inf is (all exponent bits ones). msgspec writes every Python float as a
+float64; the prefix can also occur inside other bytes (a ``bin`` array, a string), which only
+sends :func:`encode` down its slow, exact path."""
+
+
 def encode(payload: Payload) -> bytes:
-    """Serialize a payload to MessagePack bytes (raises :class:`MessageError` on NaN/inf)."""
-    if not _all_finite(payload):
+    """Serialize a payload to MessagePack bytes (raises :class:`MessageError` on NaN/inf).
+
+    The finiteness check scans the encoded bytes for a non-finite float64 (two C substring
+    searches) and the float64 arrays in numpy, instead of walking every float in Python; a hit
+    (or a type whose floats the bytes may not show, :func:`_encode_plan`) runs the exact walk,
+    which names the field."""
+    data = _encoder.encode(payload)
+    arrays, walk = _encode_plan(type(payload))
+    if (
+        walk
+        or _HUGE_F64[0] in data
+        or _HUGE_F64[1] in data
+        or any(not np.isfinite(getattr(payload, name)).all() for name in arrays)
+    ):
         _check_finite(payload, "payload")
-    return _encoder.encode(payload)
+    return data
 
 
 def decode(
@@ -124,8 +143,12 @@ def decode(
         raise MessageError(
             DropReason.VERSION, f"schema version {msg.version}, expected {SCHEMA_VERSION}"
         )
-    if not _all_finite(msg):  # fast check; the slow one names the field
-        _check_finite(msg, type(msg).__name__)
+    # msgspec has already rejected NaN/inf in every float bounded by messages.limits; only the
+    # fields with an unbounded float are walked here, and the float64 arrays checked in numpy
+    for name in _unbounded_fields(type(msg)):
+        value = getattr(msg, name)
+        if not _all_finite(value):  # fast check; the slow one names the field
+            _check_finite(value, f"{type(msg).__name__}.{name}")
     _check_arrays(msg)
     if known_senders is not None and msg.sender not in known_senders:
         raise MessageError(DropReason.UNKNOWN_SENDER, f"sender {msg.sender} is not in the fleet")
@@ -154,14 +177,95 @@ def _peek(data: bytes | bytearray | memoryview) -> Any:
 
 
 def _check_arrays(msg: msgspec.Struct) -> None:
-    """Bound the float64 array fields (msgspec cannot put a ``Meta`` on them): every entry
-    within :data:`messages.limits.ARRAY_ABS_MAX`."""
+    """Check the float64 array fields (msgspec cannot put a ``Meta`` on them): every entry
+    finite (reason ``nonfinite``) and within :data:`messages.limits.ARRAY_ABS_MAX`."""
     for name in _array_fields(type(msg)):
         value = getattr(msg, name)
-        if len(value) and float(np.abs(value).max()) > ARRAY_ABS_MAX:
+        if not len(value):
+            continue
+        peak = float(np.abs(value).max())  # NaN if any entry is NaN
+        if not math.isfinite(peak):
+            _check_finite(value, f"{type(msg).__name__}.{name}")
+        if peak > ARRAY_ABS_MAX:
             raise MessageError(
                 DropReason.OUT_OF_RANGE, f"{type(msg).__name__}.{name}: |entry| > {ARRAY_ABS_MAX:g}"
             )
+
+
+@lru_cache(maxsize=256)
+def _unbounded_fields(kind: type[msgspec.Struct]) -> tuple[str, ...]:
+    """The fields of a payload type that may hold a NaN or infinity after msgspec decoded them:
+    those with a float that no :mod:`messages.limits` bound constrains on both sides (or a type
+    msgspec cannot see into). A bounded float is validated in C: msgspec compares it with
+    ``ge``/``le``, and NaN fails every comparison, +-inf the finite bound
+    (``tests/messages/test_codec.py`` pins this). Most payloads have none: no Python walk."""
+    info = msgspec.inspect.type_info(kind)
+    assert isinstance(info, msgspec.inspect.StructType)
+    return tuple(f.name for f in info.fields if not _finite_by_msgspec(f.type, set()))
+
+
+@lru_cache(maxsize=256)
+def _encode_plan(kind: type[msgspec.Struct]) -> tuple[tuple[str, ...], bool]:
+    """For :func:`encode`: the top-level float64 array fields of a payload type, and whether
+    its values may hold floats that do not appear as MessagePack float64 (an array below the
+    top level, ``Any``, an unknown type): then every payload of the type is walked in Python."""
+    info = msgspec.inspect.type_info(kind)
+    assert isinstance(info, msgspec.inspect.StructType)
+    arrays = _array_fields(kind)
+    seen: set[int] = {id(info)}
+    walk = not all(f.name in arrays or _floats_on_the_wire(f.type, seen) for f in info.fields)
+    return arrays, walk
+
+
+def _floats_on_the_wire(t: msgspec.inspect.Type, seen: set[int]) -> bool:
+    """Whether every float inside a value of type ``t`` is encoded as a MessagePack float."""
+    mi = msgspec.inspect
+    if isinstance(t, (mi.FloatType, mi.IntType, mi.BoolType, mi.StrType, mi.NoneType,
+                      mi.BytesType, mi.ByteArrayType, mi.LiteralType, mi.EnumType)):  # fmt: skip
+        return True
+    if isinstance(t, (mi.ListType, mi.VarTupleType, mi.SetType, mi.FrozenSetType)):
+        return _floats_on_the_wire(t.item_type, seen)
+    if isinstance(t, mi.TupleType):
+        return all(_floats_on_the_wire(x, seen) for x in t.item_types)
+    if isinstance(t, mi.DictType):
+        return _floats_on_the_wire(t.key_type, seen) and _floats_on_the_wire(t.value_type, seen)
+    if isinstance(t, mi.UnionType):
+        return all(_floats_on_the_wire(x, seen) for x in t.types)
+    if isinstance(t, mi.StructType):
+        if id(t) in seen:
+            return True
+        seen.add(id(t))
+        return all(_floats_on_the_wire(f.type, seen) for f in t.fields)
+    return False  # arrays below the top level, Any, dataclasses, ...
+
+
+def _finite_by_msgspec(t: msgspec.inspect.Type, seen: set[int]) -> bool:
+    """Whether msgspec itself rejects every non-finite float inside a value of type ``t``
+    (float64 array fields count as checked: :func:`_check_arrays` does them)."""
+    mi = msgspec.inspect
+    if isinstance(t, mi.FloatType):
+        lo = t.ge if t.ge is not None else t.gt
+        hi = t.le if t.le is not None else t.lt
+        return lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi)
+    if isinstance(t, (mi.IntType, mi.BoolType, mi.StrType, mi.NoneType, mi.BytesType,
+                      mi.ByteArrayType, mi.MemoryViewType, mi.LiteralType, mi.EnumType)):  # fmt: skip
+        return True
+    if isinstance(t, (mi.ListType, mi.VarTupleType, mi.SetType, mi.FrozenSetType)):
+        return _finite_by_msgspec(t.item_type, seen)
+    if isinstance(t, mi.TupleType):
+        return all(_finite_by_msgspec(x, seen) for x in t.item_types)
+    if isinstance(t, mi.DictType):
+        return _finite_by_msgspec(t.key_type, seen) and _finite_by_msgspec(t.value_type, seen)
+    if isinstance(t, mi.UnionType):
+        return all(_finite_by_msgspec(x, seen) for x in t.types)
+    if isinstance(t, mi.StructType):
+        if id(t) in seen:  # a recursive struct: its floats are judged where first met
+            return True
+        seen.add(id(t))
+        return all(_finite_by_msgspec(f.type, seen) for f in t.fields)
+    if isinstance(t, mi.CustomType):
+        return getattr(t.cls, "__origin__", t.cls) is np.ndarray
+    return False  # Any, dataclasses, ...: walked in Python
 
 
 @lru_cache(maxsize=256)

@@ -35,7 +35,10 @@ def open_link(backend: str = "pymavlink", config: LinkConfig | None = None) -> A
 
         return PymavlinkLink(config)
     if backend == "mavsdk":
+        from messages.optional import require
         from onboard.autopilot.mavsdk_link import MavsdkLink
+
+        require("mavsdk")  # the extra bearingflock[mavsdk]: a one-line error before connecting
 
         return MavsdkLink(config)
     raise ValueError(f"unknown autopilot backend {backend!r} (pymavlink or mavsdk)")

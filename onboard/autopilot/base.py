@@ -73,8 +73,8 @@ DEFAULT_STREAM_RATES_HZ: Mapping[str, float] = {
 class LinkConfig:
     """Tuning of a link; defaults suit a companion computer next to a real autopilot."""
 
-    rate_hz: float = 20.0
-    """Setpoint stream rate (wall clock)."""
+    rate_hz: float = 50.0
+    """Setpoint stream rate (wall clock); the daemon passes ``[rates] setpoint`` (50 Hz)."""
     max_speed_xy_m_s: float = 2.0
     """Saturation of the horizontal body velocity (norm)."""
     max_speed_z_m_s: float = 1.0

@@ -9,9 +9,13 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+
+if TYPE_CHECKING:  # the camera pipeline imports OpenCV: only with camera bearings
+    from onboard.daemon.bearings import SimCameraSource
+    from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
 
 SIM_CLOCK_WAIT_S = 10.0
 """How long a daemon with ``clock = "sim"`` waits for the simulator's clock before its link."""
@@ -108,7 +112,6 @@ def _run_agent(
     from onboard.autopilot import open_link
     from onboard.autopilot.base import LinkConfig
     from onboard.daemon.bearings import SimCameraSource
-    from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
     from onboard.daemon.clock import OffsetClock, SimClockFollower, WallClock, sim_clock_handler
     from onboard.daemon.config import ConfigError, load_fleet
     from onboard.daemon.loop import AgentDaemon, agent_config
@@ -215,8 +218,12 @@ def _run_agent(
     url = mavlink or fleet.mavlink_url(agent_id)
     source: SimCameraSource | CameraImageSource
     capture: DeviceCapture | None = None
+    camera_source: CameraImageSource | None = None
     if bearings == "camera":
-        source = CameraImageSource(
+        # the camera pipeline (OpenCV, 26 MB resident) only when the bearings come from images
+        from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
+
+        source = camera_source = CameraImageSource(
             agent_id,
             pipelines,
             range(fleet.n),
@@ -245,9 +252,9 @@ def _run_agent(
     finally:
         if capture is not None:
             capture.close()
-        if isinstance(source, CameraImageSource):
-            source.close()
-            st = source.stats
+        if camera_source is not None:
+            camera_source.close()
+            st = camera_source.stats
             logging.getLogger(__name__).info(
                 "camera: %d frames processed, %d skipped, %d late, %d incomplete sets, "
                 "%d cut at the border, %d bearings",

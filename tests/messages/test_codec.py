@@ -1,5 +1,7 @@
 """The codec rejects every kind of bad payload with one error type and a reason."""
 
+from typing import Annotated, get_args
+
 import msgspec
 import numpy as np
 import pytest
@@ -10,10 +12,12 @@ from messages.codec import (
     F64Array,
     MessageError,
     Payload,
+    _unbounded_fields,
     decode,
     encode,
 )
 from messages.keys import alive_key, fleet_keys, key, parse_key
+from messages.limits import Angle, Speed, SpeedVec3
 
 
 class Ping(Payload, tag="test.ping"):
@@ -133,3 +137,67 @@ def test_float_arrays_travel_as_bytes_and_are_validated():
         assert info.value.reason == reason
     with pytest.raises(TypeError):
         encode(Vector(sender=1, values=np.zeros((2, 2))))  # only 1-D arrays have an encoding
+
+
+class Bounded(Payload, tag="test.bounded"):
+    v_body: SpeedVec3
+    yaw_rad: Angle
+    rows: list[tuple[Speed, Speed]] = msgspec.field(default_factory=list)
+    maybe: Speed | None = None
+    free: float = 0.0
+    half: Annotated[float, msgspec.Meta(ge=0.0)] = 0.0  # no upper bound: +inf passes msgspec
+
+
+def test_msgspec_bounds_reject_nonfinite_and_only_unbounded_fields_are_walked():
+    # the fast path (issue 27): a float bounded on both sides is validated by msgspec in C
+    assert _unbounded_fields(Bounded) == ("free", "half")
+    ok = {"type": "test.bounded", "sender": 1, "v_body": (1.0, 0.0, 0.0), "yaw_rad": 0.5,
+          "rows": [(1.0, 2.0)], "maybe": 1.0}  # fmt: skip
+    assert decode(msgspec.msgpack.encode(ok), Bounded).rows == [(1.0, 2.0)]
+    for bad in (float("nan"), float("inf"), float("-inf")):
+        for fields in (
+            {"v_body": (0.0, bad, 0.0)},
+            {"yaw_rad": bad},
+            {"rows": [(1.0, 2.0), (bad, 0.0)]},
+            {"maybe": bad},
+            {"free": bad},
+            {"half": bad},
+        ):
+            with pytest.raises(MessageError) as info:
+                decode(msgspec.msgpack.encode({**ok, **fields}), Bounded)
+            assert info.value.reason == "nonfinite", (fields, info.value)
+    with pytest.raises(MessageError) as info:  # an unbounded field is named
+        decode(msgspec.msgpack.encode({**ok, "free": float("nan")}), Bounded)
+    assert "Bounded.free" in info.value.detail
+    with pytest.raises(MessageError) as info:
+        decode(msgspec.msgpack.encode({**ok, "half": float("inf")}), Bounded)
+    assert "Bounded.half" in info.value.detail
+
+
+def test_every_peer_payload_is_validated_by_msgspec_alone():
+    # no Python walk for what the daemons exchange at 100 Hz (their floats all carry bounds)
+    from messages.peer import PeerPayload
+
+    kinds = get_args(PeerPayload)
+    assert kinds and all(_unbounded_fields(k) == () for k in kinds)
+
+
+def test_encode_finds_every_nonfinite_and_only_those():
+    # the encoded-bytes scan (issue 27): NaN/inf at any position of a flat or nested payload
+    rng = np.random.default_rng(0)
+    for bad in (float("nan"), float("inf"), float("-inf")):
+        for n in (1, 5, 40):
+            items = [float(x) for x in rng.normal(size=n) * 10.0 ** rng.integers(-300, 300, size=n)]
+            items[int(rng.integers(n))] = bad
+            with pytest.raises(MessageError, match="nonfinite"):
+                encode(Ping(sender=1, value=1.0, items=items))
+            with pytest.raises(MessageError, match="nonfinite"):
+                encode(Ping(sender=1, value=bad))
+    # finite values whose bytes look like a huge float64 inside a bin array: still encoded
+    tricky = np.frombuffer(b"\x00\x00\x00\x00\xcb\x7f\xf0\x3f" * 2, dtype="<f8")
+    assert np.isfinite(tricky).all()
+    data = encode(Vector(sender=1, values=tricky))
+    assert b"\xcb\x7f\xf0" in data
+    np.testing.assert_array_equal(decode(data, Vector).values, tricky)
+    huge = Ping(sender=1, value=1.7e308, items=[-1.7e308, 5e-324])  # finite extremes
+    assert decode(encode(huge), Ping) == huge
