@@ -92,3 +92,19 @@ def localization_lipschitz(max_degree: int, f_d: ReshapeD | None = None) -> floa
     ``max(deg, 2)`` (a ``lambda`` column sums ``|u_k| <= sqrt(3)``)."""
     c_d = 0.0 if f_d is None else f_d.curvature_bound()
     return 2.0 * 3.0 * max(max_degree, 2) + c_d
+
+
+def localization_steps(
+    edges: np.ndarray, n_agents: int, f_d: ReshapeD | None = None, dim: int = 3
+) -> tuple[FloatArray, FloatArray]:
+    """Per-variable steps ``h k`` (Jacobi-scaled gradient descent): the inverse absolute row sums
+    of the Hessian ``2 A^T A`` (+ ``f_D''``) of eq. 16 (+ 22). Agent ``i``: ``1 / (6 deg_i)``
+    (``deg_i`` its incident edges); edge ``(i, j)``: ``1 / (2 + 4 sqrt(d) + c_D)``. The diagonal
+    ``D`` of these row sums dominates the Hessian (``D - H`` is diagonally dominant), so the
+    scaled step ``x <- x - D^{-1} g`` decreases ``phi`` every round, and every agent computes its
+    own step from its own degree. Returns ``(h_T (N,), h_lambda (E,))``."""
+    deg = np.bincount(edges.ravel(), minlength=n_agents).astype(float)
+    c_d = 0.0 if f_d is None else f_d.curvature_bound()
+    h_t = 1.0 / (6.0 * np.maximum(deg, 1.0))
+    h_l = np.full(len(edges), 1.0 / (2.0 + 4.0 * np.sqrt(dim) + c_d))
+    return h_t, h_l

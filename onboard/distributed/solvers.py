@@ -13,7 +13,6 @@ from numpy.typing import ArrayLike
 
 from onboard.distributed.flow import (
     check_edges,
-    euclidean_step,
     lipschitz_step,
     mask_gradient,
     max_degree,
@@ -25,7 +24,7 @@ from onboard.distributed.localization import (
     LAMBDA_MIN,
     localization_costs,
     localization_gradients,
-    localization_lipschitz,
+    localization_steps,
 )
 from onboard.distributed.reshaping import F_D, F_R, ReshapeD, ReshapeR
 from onboard.distributed.rotation import rotation_costs, rotation_gradients, rotation_lipschitz
@@ -67,14 +66,16 @@ def localize(
     grad_tol: float = 0.0,
 ) -> LocalizationResult:
     """Bearing-only (``ranges_m is None``: ``lambda >= 1``, eq. 16-17) or bearing + distance
-    (eq. 22, unconstrained) localization by projected gradient descent, step ``1 / L``."""
+    (eq. 22, unconstrained) localization by projected gradient descent with the per-agent steps of
+    :func:`onboard.distributed.localization.localization_steps` (``safety <= 1`` scales them)."""
     t = np.array(t0, dtype=float)
     lam = np.array(lam0, dtype=float).reshape(-1)
     e = check_edges(edges, len(t))
     u = np.asarray(u_world, dtype=float)
     lower = LAMBDA_MIN if ranges_m is None else None
     lam = project_lower(lam, lower)
-    hk = lipschitz_step(localization_lipschitz(max_degree(e, len(t)), f_d), safety)
+    h_t, h_l = localization_steps(e, len(t), f_d, t.shape[1])
+    h_t, h_l = safety * h_t[:, None], safety * h_l
     mask = None
     if anchor is not None:
         mask = np.zeros(len(t), dtype=bool)
@@ -89,8 +90,8 @@ def localize(
         if grad_tol > 0 and max(np.abs(gt).max(), np.abs(g.g_edge).max()) < grad_tol:
             rounds = k
             break
-        t = euclidean_step(t, gt, hk)
-        lam = project_lower(euclidean_step(lam, g.g_edge, hk), lower)
+        t = t - h_t * gt
+        lam = project_lower(lam - h_l * g.g_edge, lower)
         lam_min = min(lam_min, float(lam.min()))
     cost[rounds] = float(np.sum(localization_costs(t, lam, e, u, ranges_m, f_d=f_d)))
     return LocalizationResult(
