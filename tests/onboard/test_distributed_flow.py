@@ -40,7 +40,7 @@ def test_bearing_localization_keeps_lambda_at_least_one_and_converges(seed: int)
     assert np.all(np.diff(res.cost) <= 1e-12)  # the step-size rule: descent at every round
     assert res.cost[-1] < 1e-4 * res.cost[0]
     # Slow tail: once the flow shrinks onto lambda = 1 on a few edges, those edges alone hold the
-    # scale (a weak mode); 3000 rounds leave a few percent of the extent (docs/equations.md).
+    # scale (a weak mode); 3000 rounds leave a few percent of the extent (docs/distributed.md).
     assert position_error_m(res.t, p, rotate=False) < 0.05 * np.ptp(p)
 
 
