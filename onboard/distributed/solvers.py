@@ -87,7 +87,10 @@ def localize(
         g = localization_gradients(t, lam, e, u, ranges_m, f_d=f_d)
         gt = mask_gradient(node_gradient(e, len(t), g), mask)
         assert g.g_edge is not None
-        if grad_tol > 0 and max(np.abs(gt).max(), np.abs(g.g_edge).max()) < grad_tol:
+        g_l = g.g_edge
+        if lower is not None:  # the projected gradient: zero where the constraint is active
+            g_l = np.where((lam <= lower) & (g_l > 0), 0.0, g_l)
+        if grad_tol > 0 and max(np.abs(gt).max(), np.abs(g_l).max()) < grad_tol:
             rounds = k
             break
         t = t - h_t * gt
