@@ -63,10 +63,14 @@ def node_gradient(edges: IntArray, n_agents: int, g: EdgeGradients) -> FloatArra
 
     Agent ``i`` receives ``g_src`` of its out-edges and ``g_dst`` of its in-edges.
     """
-    out = np.zeros((n_agents, *g.g_src.shape[1:]))
-    np.add.at(out, edges[:, 0], g.g_src)
-    np.add.at(out, edges[:, 1], g.g_dst)
-    return out
+    src = g.g_src.reshape(len(edges), -1)
+    dst = g.g_dst.reshape(len(edges), -1)
+    cols = [
+        np.bincount(edges[:, 0], weights=src[:, k], minlength=n_agents)
+        + np.bincount(edges[:, 1], weights=dst[:, k], minlength=n_agents)
+        for k in range(src.shape[1])
+    ]
+    return np.stack(cols, axis=1).reshape(n_agents, *g.g_src.shape[1:])
 
 
 def euclidean_step(x: FloatArray, grad: FloatArray, h_k: float) -> FloatArray:

@@ -64,10 +64,12 @@ def localize(
     safety: float = 1.0,
     anchor: int | None = None,
     grad_tol: float = 0.0,
+    record_cost: bool = True,
 ) -> LocalizationResult:
     """Bearing-only (``ranges_m is None``: ``lambda >= 1``, eq. 16-17) or bearing + distance
     (eq. 22, unconstrained) localization by projected gradient descent with the per-agent steps of
-    :func:`onboard.distributed.localization.localization_steps` (``safety <= 1`` scales them)."""
+    :func:`onboard.distributed.localization.localization_steps` (``safety <= 1`` scales them).
+    ``record_cost=False`` leaves the per-round costs ``nan`` (only the final one is computed)."""
     t = np.array(t0, dtype=float)
     lam = np.array(lam0, dtype=float).reshape(-1)
     e = check_edges(edges, len(t))
@@ -83,7 +85,11 @@ def localize(
     cost = np.empty(rounds + 1)
     lam_min = float(lam.min()) if lam.size else np.inf
     for k in range(rounds):
-        cost[k] = float(np.sum(localization_costs(t, lam, e, u, ranges_m, f_d=f_d)))
+        cost[k] = (
+            float(np.sum(localization_costs(t, lam, e, u, ranges_m, f_d=f_d)))
+            if record_cost
+            else np.nan
+        )
         g = localization_gradients(t, lam, e, u, ranges_m, f_d=f_d)
         gt = mask_gradient(node_gradient(e, len(t), g), mask)
         assert g.g_edge is not None
