@@ -11,11 +11,12 @@ from typing import Annotated
 
 import typer
 
+from sim.distributed_scenarios import DISTRIBUTED_SCENARIOS
 from sim.rigidity_scenarios import RIGIDITY_SCENARIOS
 from sim.scenarios import SCENARIOS
 from sim.se3_runner import SE3_SCENARIOS
 
-ALL_SCENARIOS = [*SCENARIOS, *RIGIDITY_SCENARIOS, *SE3_SCENARIOS]
+ALL_SCENARIOS = [*SCENARIOS, *RIGIDITY_SCENARIOS, *SE3_SCENARIOS, *DISTRIBUTED_SCENARIOS]
 
 
 def scenario(
@@ -39,8 +40,9 @@ def scenario(
     ] = "cores",
 ) -> None:
     """Reproduce a scale-from-motion case of paper 000 (N = 6, 2 ms clock, 50 Hz bearings), a
-    rigidity-maintenance simulation of paper 003 (rigidity-*) or paper 001's centralized SE(3)
-    EKF (ekf-se3: 60 s by default, bearing noise 1 deg unless given)."""
+    rigidity-maintenance simulation of paper 003 (rigidity-*), paper 001's centralized SE(3)
+    EKF (ekf-se3: 60 s by default, bearing noise 1 deg unless given) or paper 002's distributed
+    framework (formation-*, localization-*)."""
     import math
 
     from rich.console import Console
@@ -53,6 +55,11 @@ def scenario(
         raise typer.BadParameter(
             f"unknown scenario {name!r}; choose from {', '.join(ALL_SCENARIOS)}"
         )
+    if name in DISTRIBUTED_SCENARIOS:  # paper 002 (sim/distributed_cli.py)
+        from sim.distributed_cli import run_distributed
+
+        result = run_distributed(name, seed, duration, plot, bearing_noise_deg, loss, latency)
+        return _print(result, json, Console(stderr=True))
     if duration is None:
         duration = 60.0 if name in RIGIDITY_SCENARIOS or name in SE3_SCENARIOS else 20.0
     if not (math.isfinite(duration) and duration > 0):

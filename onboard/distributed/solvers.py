@@ -1,0 +1,139 @@
+"""Synchronous discrete-time runs of the estimation flows (paper 002 eq. 7-8 with
+:mod:`.flow`'s update): every agent updates from its neighbours' states of the previous round.
+
+Each solver returns the final states and a per-round history of the total cost ``phi`` (eq. 5).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from onboard.distributed.flow import (
+    check_edges,
+    lipschitz_step,
+    mask_gradient,
+    max_degree,
+    node_gradient,
+    project_lower,
+    so3_step,
+)
+from onboard.distributed.localization import (
+    LAMBDA_MIN,
+    localization_costs,
+    localization_gradients,
+    localization_steps,
+)
+from onboard.distributed.reshaping import F_D, F_R, ReshapeD, ReshapeR
+from onboard.distributed.rotation import rotation_costs, rotation_gradients, rotation_lipschitz
+from onboard.geometry import FloatArray
+
+
+@dataclass(frozen=True)
+class LocalizationResult:
+    t: FloatArray
+    """``(N, d)`` translations."""
+    lam: FloatArray
+    """``(E,)`` edge scales."""
+    cost: FloatArray
+    """``(rounds + 1,)`` total cost before each round and at the end."""
+    lam_min_seen: float
+    """Smallest ``lambda_ij`` over the whole run (eq. 17 says ``>= 1`` when constrained)."""
+    rounds: int
+    """Rounds run (fewer than asked when the gradient fell below ``grad_tol``)."""
+
+
+@dataclass(frozen=True)
+class RotationResult:
+    rot: FloatArray
+    """``(N, 3, 3)`` body-to-world rotations."""
+    cost: FloatArray
+    rounds: int
+
+
+def localize(
+    edges: ArrayLike,
+    u_world: ArrayLike,
+    t0: ArrayLike,
+    lam0: ArrayLike,
+    rounds: int,
+    ranges_m: ArrayLike | None = None,
+    f_d: ReshapeD = F_D,
+    safety: float = 1.0,
+    anchor: int | None = None,
+    grad_tol: float = 0.0,
+    record_cost: bool = True,
+) -> LocalizationResult:
+    """Bearing-only (``ranges_m is None``: ``lambda >= 1``, eq. 16-17) or bearing + distance
+    (eq. 22, unconstrained) localization by projected gradient descent with the per-agent steps of
+    :func:`onboard.distributed.localization.localization_steps` (``safety <= 1`` scales them).
+    ``record_cost=False`` leaves the per-round costs ``nan`` (only the final one is computed)."""
+    t = np.array(t0, dtype=float)
+    lam = np.array(lam0, dtype=float).reshape(-1)
+    e = check_edges(edges, len(t))
+    u = np.asarray(u_world, dtype=float)
+    lower = LAMBDA_MIN if ranges_m is None else None
+    lam = project_lower(lam, lower)
+    h_t, h_l = localization_steps(e, len(t), f_d, t.shape[1])
+    h_t, h_l = safety * h_t[:, None], safety * h_l
+    mask = None
+    if anchor is not None:
+        mask = np.zeros(len(t), dtype=bool)
+        mask[anchor] = True
+    cost = np.empty(rounds + 1)
+    lam_min = float(lam.min()) if lam.size else np.inf
+    for k in range(rounds):
+        cost[k] = (
+            float(np.sum(localization_costs(t, lam, e, u, ranges_m, f_d=f_d)))
+            if record_cost
+            else np.nan
+        )
+        g = localization_gradients(t, lam, e, u, ranges_m, f_d=f_d)
+        gt = mask_gradient(node_gradient(e, len(t), g), mask)
+        assert g.g_edge is not None
+        g_l = g.g_edge
+        if lower is not None:  # the projected gradient: zero where the constraint is active
+            g_l = np.where((lam <= lower) & (g_l > 0), 0.0, g_l)
+        if grad_tol > 0 and max(np.abs(gt).max(), np.abs(g_l).max()) < grad_tol:
+            rounds = k
+            break
+        t = t - h_t * gt
+        lam = project_lower(lam - h_l * g.g_edge, lower)
+        lam_min = min(lam_min, float(lam.min()))
+    cost[rounds] = float(np.sum(localization_costs(t, lam, e, u, ranges_m, f_d=f_d)))
+    return LocalizationResult(
+        t=t, lam=lam, cost=cost[: rounds + 1], lam_min_seen=lam_min, rounds=rounds
+    )
+
+
+def estimate_rotations(
+    edges: ArrayLike,
+    rel_meas: ArrayLike,
+    rot0: ArrayLike,
+    rounds: int,
+    f: ReshapeR = F_R,
+    safety: float = 1.0,
+    anchor: int | None = None,
+    grad_tol: float = 0.0,
+) -> RotationResult:
+    """Rotation estimation (eq. 13-15) by gradient descent on SO(3), exponential-map steps."""
+    rot = np.array(rot0, dtype=float)
+    e = check_edges(edges, len(rot))
+    rm = np.asarray(rel_meas, dtype=float)
+    hk = lipschitz_step(rotation_lipschitz(f, max_degree(e, len(rot))), safety)
+    mask = None
+    if anchor is not None:
+        mask = np.zeros(len(rot), dtype=bool)
+        mask[anchor] = True
+    cost = np.empty(rounds + 1)
+    for k in range(rounds):
+        cost[k] = float(np.sum(rotation_costs(rot, e, rm, f)))
+        g = mask_gradient(node_gradient(e, len(rot), rotation_gradients(rot, e, rm, f)), mask)
+        if grad_tol > 0 and np.abs(g).max() < grad_tol:
+            rounds = k
+            break
+        rot = so3_step(rot, g, hk)
+    cost[rounds] = float(np.sum(rotation_costs(rot, e, rm, f)))
+    return RotationResult(rot=rot, cost=cost[: rounds + 1], rounds=rounds)
