@@ -346,9 +346,21 @@ def run_rigidity_scenario(
     duration_s: float = 60.0,
     progress: Callable[[float], None] | None = None,
     config_overrides: dict[str, object] | None = None,
+    engine: str = "cores",
     **runner_options: object,
 ) -> RigidityRecording:
-    """Run rigidity scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`."""
+    """Run rigidity scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`.
+
+    ``engine``: ``"cores"`` steps one agent core per vehicle (the reference), ``"compiled"`` the
+    same team in :mod:`sim.compiled_rigidity`."""
+    if engine == "compiled":
+        from sim.compiled_rigidity import run_compiled_rigidity
+
+        return run_compiled_rigidity(
+            name, seed, duration_s, progress, config_overrides, **runner_options
+        )
+    if engine != "cores":
+        raise ValueError(f"unknown engine {engine!r}; choose 'cores' or 'compiled'")
     if name not in RIGIDITY_SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(RIGIDITY_SCENARIOS)}")
     configs, p0, yaw0 = agent_configs(name, seed, **(config_overrides or {}))

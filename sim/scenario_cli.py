@@ -31,9 +31,9 @@ def scenario(
     engine: Annotated[
         str,
         typer.Option(
-            help="scale-*: 'cores' steps one agent core per vehicle (the reference), "
-            "'compiled' the same team compiled with numba, ~250x real time (the first run "
-            "compiles it, about 30 s)"
+            help="'cores' steps one agent core per vehicle (the reference), "
+            "'compiled' the same team compiled with numba (scale-*: ~250x real time; "
+            "rigidity-*: no loss or latency; the first run compiles it, 30-60 s)"
         ),
     ] = "cores",
 ) -> None:
@@ -63,8 +63,6 @@ def scenario(
         raise typer.BadParameter("loss must be in [0, 1)")
     if engine not in ("cores", "compiled"):
         raise typer.BadParameter(f"unknown engine {engine!r}; choose 'cores' or 'compiled'")
-    if engine == "compiled" and name in RIGIDITY_SCENARIOS:
-        raise typer.BadParameter("the compiled engine runs the scale-* scenarios only")
     console = Console(stderr=True)
     with Progress(
         TextColumn(f"[bold]{name}[/] seed {seed}"),
@@ -88,6 +86,7 @@ def scenario(
                 bearing_noise_rad=math.radians(bearing_noise_deg),
                 loss=loss,
                 latency_s=latency,
+                engine=engine,
             )
         else:
             rec = run_scenario(

@@ -1,0 +1,270 @@
+"""The compiled engine for paper 003's rigidity scenarios (``--engine compiled``).
+
+:func:`run_compiled_rigidity` takes what :func:`sim.rigidity_scenarios.run_rigidity_scenario`
+takes and returns the same :class:`sim.rigidity_scenarios.RigidityRecording`, from
+:func:`sim.rigidity_kernel.simulate` instead of N Python agent cores with their rigidity
+layers. The cores remain the reference (and what the daemons fly); the two engines agree on the
+same seed to round-off (``tests/sim/test_rigidity_compiled.py`` bounds the difference).
+
+Supported: the three rigidity scenarios, any :class:`onboard.agent_config.AgentConfig` gains,
+bearing noise (drawn from the runner's generator in the runner's order). Refused with a
+:class:`ValueError` naming the option (use engine ``cores``): message loss and latency, odometry
+noise and bias, camera latency, autopilot lags, the centralized eigen-estimate, a rigidity
+period, SfM distances, and graphs other than the complete one.
+
+The first call compiles the kernel (about a minute on a small machine); numba caches it next to
+the sources, so later processes load it in a few seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import msgspec
+import numpy as np
+
+from onboard.agent_config import AgentConfig
+from onboard.geometry import FloatArray, rot_z
+from onboard.graph import complete_graph, normalize_edges, reciprocal_pairs
+from onboard.rigidity.weights import SensingModel
+from sim import rigidity_kernel as rk
+from sim.runner import Recording, RunnerConfig
+
+MAX_RESTARTS = 16
+"""Restarts of each agent's eigen-estimate drawn ahead (the kernel stops beyond them)."""
+
+
+def parameters(cfg: AgentConfig, runner: RunnerConfig) -> FloatArray:
+    """The kernel's float parameters (``rigidity_kernel.P_*``) from the team's config."""
+    model = SensingModel(cfg.fov_deg, cfg.range_m)
+    prm = np.zeros(rk.N_PARAMS)
+    fov = runner.fov_deg if runner.fov_deg is not None else 360.0
+    values = {
+        rk.P_DT: runner.dt_s,
+        rk.P_K_ANGLE: cfg.k_angle_loc,
+        rk.P_K_VERTICAL: cfg.k_vertical_loc,
+        rk.P_K_DISTANCE: cfg.k_distance_loc,
+        rk.P_LAMBDA_MIN: cfg.lambda_min,
+        rk.P_LAMBDA_SAFE: cfg.lambda_safe,
+        rk.P_K_RIGIDITY: cfg.k_rigidity,
+        rk.P_R_COLL: cfg.r_coll_m,
+        rk.P_R_SAFE: cfg.r_safe_m,
+        rk.P_K_COLL: cfg.k_collision,
+        rk.P_R_TRACK: cfg.r_track_m,
+        rk.P_K_TRACK_RANGE: cfg.k_track_range,
+        rk.P_K_TRACK_CAMERA: cfg.k_track_camera,
+        rk.P_SOFTMIN_TAU: cfg.rigidity_softmin_tau,
+        rk.P_EIG_STEP: cfg.eigen_step,
+        rk.P_EIG_KT: cfg.eigen_k_t,
+        rk.P_EIG_KN: cfg.eigen_k_n,
+        rk.P_EIG_FORGET: 0.998,
+        rk.P_E_G: 0.15,
+        rk.P_E_P: 0.5,
+        rk.P_E_I: 0.45,
+        rk.P_V_MAX: cfg.v_max_m_s,
+        rk.P_W_MAX: cfg.yaw_rate_max_rad_s,
+        rk.P_PEER_TIMEOUT: cfg.peer_timeout_s,
+        rk.P_WARMUP: cfg.rigidity_warmup_s,
+        rk.P_RANGE_ONE: model.range_full_m,
+        rk.P_RANGE_WIDTH: model.range_m - model.range_full_m,
+        rk.P_FOV_ONE: model.cos_fov_full,
+        rk.P_FOV_WIDTH: model.cos_fov_edge - model.cos_fov_full,
+        rk.P_CAM_COS_HALF: -2.0 if fov >= 360.0 else float(np.cos(np.deg2rad(fov) / 2.0)),
+        rk.P_CAM_RANGE: runner.sensing_range_m,
+        rk.P_YAW_GAIN: 0.2,
+        rk.P_MAINTENANCE: 1.0 if cfg.rigidity_maintenance else 0.0,
+    }
+    for key, value in values.items():
+        prm[key] = value
+    return prm
+
+
+def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
+    """Raise :class:`ValueError` for what the kernel does not model (module docstring)."""
+    from onboard.estimation.angle_localization import AngleLocalizer
+    from onboard.estimation.distributed_eigen import EigenGains
+
+    n = len(configs)
+    team = msgspec.structs.replace(configs[0], agent_id=0, track_target=-1)
+    complete = {(int(i), int(j)) for i, j in complete_graph(n)}
+    for i, c in enumerate(configs):
+        if c.agent_id != i:
+            raise ValueError(f"configs[{i}] has agent_id {c.agent_id}: give them in id order")
+        if msgspec.structs.replace(c, agent_id=0, track_target=-1) != team:
+            raise ValueError("the compiled engine needs one configuration for the whole team")
+    cfg = configs[0]
+    if cfg.mode != "rigidity-tracking":
+        raise ValueError(
+            f"the compiled rigidity engine runs mode 'rigidity-tracking', not {cfg.mode!r}"
+        )
+    if {tuple(e) for e in cfg.edges} != complete or (
+        cfg.rigidity_edges and {tuple(e) for e in cfg.rigidity_edges} != complete
+    ):
+        raise ValueError("the compiled rigidity engine needs the complete graph")
+    g = EigenGains()
+    loc = AngleLocalizer(np.zeros(3))
+    unsupported = {
+        "rigidity_eigen": cfg.rigidity_eigen != "distributed",
+        "rigidity_period_s": cfg.rigidity_period_s != 0.0,
+        "rigidity_scale_from_sfm": cfg.rigidity_scale_from_sfm,
+        "eigen forget/consensus gains": (
+            g.forget,
+            g.consensus.e_g,
+            g.consensus.e_p,
+            g.consensus.e_i,
+        )
+        != (0.998, 0.15, 0.5, 0.45),
+        "yaw_gain": loc.yaw_gain != 0.2,
+        "range/fov of the sensing model": math.isinf(cfg.range_m) or cfg.fov_deg >= 360.0,
+        "loss": runner.loss != 0.0,
+        "latency_s": runner.latency_s != 0.0,
+        "camera_latency_s": runner.camera_latency_s != 0.0,
+        "velocity_noise_m_s": runner.velocity_noise_m_s != 0.0,
+        "yaw_rate_noise_rad_s": runner.yaw_rate_noise_rad_s != 0.0,
+        "velocity_bias_m_s": runner.velocity_bias_m_s != 0.0,
+        "tau_v_s": runner.tau_v_s != 0.0,
+        "tau_yaw_s": runner.tau_yaw_s != 0.0,
+    }
+    bad = [k for k, v in unsupported.items() if v]
+    if bad:
+        raise ValueError(
+            f"the compiled rigidity engine does not model {', '.join(bad)}; use engine 'cores'"
+        )
+    EigenGains(columns=cfg.eigen_columns, step=cfg.eigen_step, k_t=cfg.eigen_k_t, k_n=cfg.eigen_k_n)
+
+
+def run_compiled_rigidity_team(
+    configs: Sequence[AgentConfig],
+    p0_ned: FloatArray,
+    yaw0_rad: FloatArray,
+    runner: RunnerConfig,
+    target_path: Callable[[float], FloatArray],
+) -> tuple[Recording, FloatArray, FloatArray, FloatArray, dict[str, int]]:
+    """The team of ``configs`` from the true start: the runner's :class:`Recording` and the
+    layers' ``(lambda_hat (T, N), p_hat (T, N, 3), yaw_hat (T, N))`` and counters."""
+    _check(configs, runner)
+    cfg = configs[0]
+    n = len(configs)
+    k = cfg.eigen_columns
+    p0 = np.array(p0_ned, dtype=float).reshape(n, 3)
+    yaw0 = np.array(yaw0_rad, dtype=float).reshape(n)
+    dt = runner.dt_s
+    n_steps = round(runner.duration_s / dt)
+    frame_every = max(1, round(1.0 / (runner.camera_rate_hz * dt)))
+    n_frames = n_steps // frame_every + 1
+    # the runner's generator, drawn in its order: yaw offsets, then bearing noise per frame
+    rng = np.random.default_rng(runner.seed)
+    offsets = rng.uniform(-runner.yaw_offset_max_rad, runner.yaw_offset_max_rad, n)
+    n_edges = n * (n - 1)
+    sigma = runner.bearing_noise_rad
+    if sigma > 0.0:
+        noise = np.stack([rng.standard_normal((n_edges, 3)) * sigma for _ in range(n_frames)])
+    else:
+        noise = np.zeros((1, n_edges, 3))
+    v0 = np.stack(
+        [np.random.default_rng([cfg.seed, i, 31]).standard_normal((3, k)) for i in range(n)]
+    )
+    restart_v = np.stack(
+        [
+            np.stack(
+                [
+                    np.random.default_rng([cfg.seed * 7919 + i, r]).standard_normal((3, k))
+                    for r in range(1, MAX_RESTARTS + 1)
+                ]
+            )
+            for i in range(n)
+        ]
+    )
+    p_hat0 = (
+        np.array(cfg.p_hat0_ned, dtype=float).reshape(n, 3) if cfg.p_hat0_ned else np.zeros((n, 3))
+    )
+    targets = np.stack(
+        [
+            np.asarray(target_path(f * frame_every * dt), dtype=float).reshape(-1, 3)
+            for f in range(n_frames)
+        ]
+    )
+    track = np.array([c.track_target for c in configs], dtype=np.int64)
+    pairs_r = np.array(runner.range_pairs, dtype=np.int64).reshape(-1, 2)
+    (rp, ryaw, rvb, rlam, rph, ryh), (nonfinite, restarts) = rk.simulate(
+        p0,
+        yaw0,
+        offsets,
+        p_hat0,
+        v0,
+        restart_v,
+        targets,
+        track,
+        pairs_r,
+        noise,
+        parameters(cfg, runner),
+        n_steps,
+        frame_every,
+        runner.record_every,
+    )
+    edges = normalize_edges(cfg.edges)
+    rec = Recording.allocate(edges, reciprocal_pairs(edges), n, len(rp))
+    rec.t_s[:] = np.arange(len(rp)) * runner.record_every * dt
+    rec.p_ned[:] = rp
+    rec.yaw_rad[:] = ryaw
+    rec.v_ned[:] = np.einsum("tnij,tnj->tni", rot_z(ryaw), rvb)
+    # in mode rigidity-tracking the paper 000 localization filter keeps its prior
+    y_hat0 = np.array(cfg.yaw_hat0_rad, dtype=float) if cfg.yaw_hat0_rad else np.zeros(n)
+    rec.p_hat_ned[:] = p_hat0
+    rec.yaw_hat_rad[:] = y_hat0
+    counters = {"nonfinite_actions": int(nonfinite), "eigen_restarts": int(restarts)}
+    return rec, rlam, rph, ryh, counters
+
+
+def run_compiled_rigidity(
+    name: str,
+    seed: int = 0,
+    duration_s: float = 60.0,
+    progress: Callable[[float], None] | None = None,
+    config_overrides: dict[str, object] | None = None,
+    **runner_options: object,
+):
+    """:func:`sim.rigidity_scenarios.run_rigidity_scenario` on the compiled engine."""
+    from sim.rigidity_scenarios import (
+        DT_S,
+        FOV_DEG,
+        RANGE_M,
+        RIGIDITY_SCENARIOS,
+        RigidityRecording,
+        agent_configs,
+        target_path,
+    )
+
+    if name not in RIGIDITY_SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(RIGIDITY_SCENARIOS)}")
+    configs, p0, yaw0 = agent_configs(name, seed, **(config_overrides or {}))
+    path = target_path(name, seed, p0.mean(axis=0))
+    options: dict[str, object] = {
+        "dt_s": DT_S,
+        "record_every": 50,
+        "fov_deg": FOV_DEG,
+        "sensing_range_m": RANGE_M,
+        "range_pairs": ((3, 4),),
+        "target_path": path,
+    }
+    options.update(runner_options)
+    rc = RunnerConfig(duration_s=duration_s, seed=seed, **options)  # type: ignore[arg-type]
+    rec, lam, p_hat, yaw_hat, _ = run_compiled_rigidity_team(configs, p0, yaw0, rc, path)
+    if progress is not None:
+        progress(1.0)
+    cfg = configs[0]
+    return RigidityRecording(
+        rec=rec,
+        name=name,
+        seed=seed,
+        targets_ned=np.stack([np.asarray(path(float(t))).reshape(-1, 3) for t in rec.t_s]),
+        lambda_hat=lam,
+        p_hat_ned=p_hat,
+        yaw_hat_rad=yaw_hat,
+        track_target=[c.track_target for c in configs],
+        model=SensingModel(cfg.fov_deg, cfg.range_m),
+        lambda_min=cfg.lambda_min,
+        lambda_safe=cfg.lambda_safe,
+        warmup_s=cfg.rigidity_warmup_s,
+    )
