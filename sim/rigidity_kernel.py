@@ -30,16 +30,10 @@ import math
 import numpy as np
 from numba import njit
 
+from onboard.control.rigidity import BARRIER_FLOOR
+from onboard.estimation.distributed_eigen import MAX_BLOCK_NORM2, N_TRIVIAL, RITZ_RCOND, TT_RCOND
+from onboard.rigidity_layer import BLEND_FLOOR, EIGEN_AGREEMENT, FRAME_MAX_AGE_S, ROUND_TIMEOUT_S
 from sim.rigidity_lapack import dgesv, dsyevd
-
-N_TRIVIAL = 7
-RITZ_RCOND = 1e-6
-MAX_BLOCK_NORM2 = 1e4
-BLEND_FLOOR = 1e-3
-BARRIER_FLOOR = 1e-3
-FRAME_MAX_AGE_S = 0.2
-EIGEN_AGREEMENT = 0.5
-ROUND_TIMEOUT_S = 0.3
 
 # indices of the float parameters (:func:`sim.compiled_rigidity.parameters`)
 (
@@ -330,6 +324,34 @@ def form_gradient_only(b, d, cosm, h, w, dh_dr, dh_dyaw, v_own, v_nbr):
 
 
 @njit(cache=True)
+def mm(a, b):
+    """``a @ b`` for small matrices, summed by a loop (BLAS's call costs more than the work)."""
+    n, m = a.shape
+    p = b.shape[1]
+    out = np.zeros((n, p))
+    for i in range(n):
+        for q in range(m):
+            x = a[i, q]
+            for j in range(p):
+                out[i, j] += x * b[q, j]
+    return out
+
+
+@njit(cache=True)
+def mm_tn(a, b):
+    """``a.T @ b`` for small matrices, summed by a loop."""
+    m, n = a.shape
+    p = b.shape[1]
+    out = np.zeros((n, p))
+    for q in range(m):
+        for i in range(n):
+            x = a[q, i]
+            for j in range(p):
+                out[i, j] += x * b[q, j]
+    return out
+
+
+@njit(cache=True)
 def trivial_block(p):
     """:func:`onboard.estimation.distributed_eigen.trivial_motion_block`: ``T_i`` ``(3, 7)``."""
     x, y, z = p[0], p[1], p[2]
@@ -355,22 +377,22 @@ def consensus_input(t_i, v, mv):
     kk = v.shape[1]
     out = np.empty(N_TRIVIAL * kk + 28 + kk * (kk + 1))
     n = 0
-    tv = t_i.T @ v
+    tv = mm_tn(t_i, v)
     for a in range(N_TRIVIAL):
         for c in range(kk):
             out[n] = tv[a, c]
             n += 1
-    tt = t_i.T @ t_i
+    tt = mm_tn(t_i, t_i)
     for a in range(N_TRIVIAL):
         for c in range(a, N_TRIVIAL):
             out[n] = tt[a, c]
             n += 1
-    vv = v.T @ v
+    vv = mm_tn(v, v)
     for a in range(kk):
         for c in range(a, kk):
             out[n] = vv[a, c]
             n += 1
-    vmv = v.T @ mv
+    vmv = mm_tn(v, mv)
     for a in range(kk):
         for c in range(a, kk):
             out[n] = 0.5 * (vmv[a, c] + vmv[c, a])
@@ -405,10 +427,15 @@ def ritz(x, kk):
     tt = unpack_sym(x, b0, N_TRIVIAL)
     vv = unpack_sym(x, b1, kk)
     vmv = unpack_sym(x, b2, kk)
-    coef, info = dgesv(tt, tv)
-    if info != 0 or not np.all(np.isfinite(coef)):
+    lu, coef, info = dgesv(tt, tv)
+    p_min = np.inf
+    p_max = 0.0
+    for q in range(N_TRIVIAL):
+        p_min = min(p_min, abs(lu[q, q]))
+        p_max = max(p_max, abs(lu[q, q]))
+    if info != 0 or not np.all(np.isfinite(coef)) or not p_min > TT_RCOND * p_max:
         coef = np.zeros((N_TRIVIAL, kk))
-    g = vv - tv.T @ coef
+    g = vv - mm_tn(tv, coef)
     ev, u, info = dsyevd(g)
     top = ev[-1] if info == 0 else 0.0
     if not top > 0.0:
@@ -419,10 +446,10 @@ def ritz(x, kk):
         sq = math.sqrt(ev[q])
         for a in range(kk):
             w_half[a, c] = u[a, q] / sq
-    theta, s, info = dsyevd(w_half.T @ vmv @ w_half)
+    theta, s, info = dsyevd(mm(mm_tn(w_half, vmv), w_half))
     if info != 0:
         return np.zeros(0), np.zeros((kk, 0)), coef
-    return theta, w_half @ s, coef
+    return theta, mm(w_half, s), coef
 
 
 @njit(cache=True)
@@ -762,10 +789,32 @@ def simulate(
             p_own = p_hat[i].copy()
 
             # 2. angle localization (eq. 10-11)
-            p_seen = np.empty((n_seen, 3))
+            # one star over the candidates (elementwise: a sub-star is a restriction)
+            p_cand = np.empty((n_cand, 3))
+            for q in range(n_cand):
+                p_cand[q] = loc_p[cand[q]]
+            _, d_c, b_c, cos_c, h_c, w_c, dhr_c, dhy_c = star(p_own, yaw_hat[i], p_cand, prm)
+            pos = np.full(n, -1, np.int64)
+            for q in range(n_cand):
+                pos[cand[q]] = q
+            inside = True
             for q in range(n_seen):
-                p_seen[q] = loc_p[seen[q]]
-            _, d_s, b_s, cos_s, _, _, _, _ = star(p_own, yaw_hat[i], p_seen, prm)
+                inside = inside and pos[seen[q]] >= 0
+            if inside:
+                d_s = np.empty(n_seen)
+                b_s = np.empty((n_seen, 3))
+                cos_s = np.empty((n_seen, n_seen))
+                for q in range(n_seen):
+                    a_q = pos[seen[q]]
+                    d_s[q] = d_c[a_q]
+                    b_s[q] = b_c[a_q]
+                    for q2 in range(n_seen):
+                        cos_s[q, q2] = cos_c[a_q, pos[seen[q2]]]
+            else:
+                p_seen = np.empty((n_seen, 3))
+                for q in range(n_seen):
+                    p_seen[q] = loc_p[seen[q]]
+                _, d_s, b_s, cos_s, _, _, _, _ = star(p_own, yaw_hat[i], p_seen, prm)
             g_loc = angle_gradient(b_s, d_s, cos_s, beta, prm[P_K_ANGLE])
             g_loc += vertical_gradient(b_s, d_s, beta, prm[P_K_VERTICAL])
             grad = g_loc[0].copy()
@@ -813,15 +862,12 @@ def simulate(
             if take:
                 rounds[i] = max(rounds[i], max(low, 0)) + 1
                 round_t[i] = t
-                p_cand = np.empty((n_cand, 3))
                 v_cand = np.empty((n_cand, 3, kk))
                 for q in range(n_cand):
                     j = cand[q]
-                    p_cand[q] = loc_p[j]
                     for c in range(3):
                         for col in range(kk):
                             v_cand[q, c, col] = eig_state[j, 2 * n_c + c * kk + col]
-                _, d_c, b_c, cos_c, h_c, w_c, dhr_c, dhy_c = star(p_own, yaw_hat[i], p_cand, prm)
                 v_i = vmat[i]
                 mv = weighted_matvec(b_c, d_c, cos_c, w_c, v_i, v_cand)
                 s_parts = weighted_degree(d_c, cos_c, w_c)
@@ -847,10 +893,10 @@ def simulate(
                     wts = blend(theta[i, :nt], prm[P_SOFTMIN_TAU])
                     cr = np.ascontiguousarray(c_ritz[i, :, :nt])
                     cf = coef[i]
-                    y_own = (v_i - t_i @ cf) @ cr
+                    y_own = mm(v_i - mm(t_i, cf), cr)
                     y_nbr = np.empty((n_cand, 3, nt))
                     for q in range(n_cand):
-                        y_nbr[q] = (v_cand[q] - trivial_block(p_cand[q]) @ cf) @ cr
+                        y_nbr[q] = mm(v_cand[q] - mm(trivial_block(p_cand[q]), cf), cr)
                     for m in range(nt):
                         if wts[m] == 0.0:
                             continue
@@ -905,13 +951,13 @@ def simulate(
                     c_ritz[i] = 0.0
                     c_ritz[i, :, : len(th)] = cr_new
                     has_ritz[i] = True
-                trivial = t_i @ cf_new
+                trivial = mm(t_i, cf_new)
                 alpha = prm[P_EIG_STEP] / s_bar[i] if s_bar[i] > 0.0 else 0.0
                 vv = unpack_sym(xs[i], N_TRIVIAL * kk + 28, kk)
                 for c in range(kk):
                     vv[c, c] -= 1.0
                 v_new = (
-                    v_i - alpha * mv_i - prm[P_EIG_KT] * trivial - 0.5 * prm[P_EIG_KN] * (v_i @ vv)
+                    v_i - alpha * mv_i - prm[P_EIG_KT] * trivial - 0.5 * prm[P_EIG_KN] * mm(v_i, vv)
                 )
                 if not (v_new * v_new).sum() <= MAX_BLOCK_NORM2:
                     restarts[i] += 1

@@ -28,7 +28,8 @@ _dsyevd = types.ExternalFunction("bearingflock_dsyevd", types.void(*[_VP] * 11))
 
 @njit(cache=True)
 def dgesv(a, b):
-    """``scipy.linalg.lapack.dgesv(a, b)``'s ``(x, info)``: ``a`` ``(n, n)``, ``b`` ``(n, k)``."""
+    """``scipy.linalg.lapack.dgesv(a, b)``'s ``(lu, x, info)``: ``a`` ``(n, n)``, ``b`` ``(n, k)``
+    (``lu`` transposed: its diagonal, the pivots, is what callers read)."""
     n = a.shape[0]
     k = b.shape[1]
     af = np.ascontiguousarray(a.T)  # C order of a^T = Fortran order of a
@@ -48,7 +49,7 @@ def dgesv(a, b):
         ints[0:1].ctypes,
         ints[2:3].ctypes,
     )
-    return np.ascontiguousarray(bf.T), ints[2]
+    return af, np.ascontiguousarray(bf.T), ints[2]
 
 
 @njit(cache=True)
