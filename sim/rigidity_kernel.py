@@ -9,9 +9,11 @@ of :mod:`onboard.estimation.round_consensus`), the rigidity, collision and track
 (eq. 19-23, 30-33, :mod:`onboard.control.rigidity`), the saturation and the kinematic world.
 
 Each function below is the loop form of the onboard function it names (same equations, same
-order of operations where it matters; matrix products are summed by loops here and by BLAS
-there, so the two engines agree to round-off, not bit for bit). The Ritz problem calls the same
-LAPACK routines as the onboard code (:mod:`sim.rigidity_lapack`).
+order of operations where it matters). The two engines agree to round-off, not bit for bit:
+matrix products are summed by loops here and by BLAS there, and the Ritz problem's 7x7 solve
+and 3x3 symmetric eigenproblems are an LU and Jacobi rotations here, LAPACK there (a LAPACK
+call costs ten times the arithmetic of these sizes; the Ritz pairs do not depend on the basis
+the eigensolver returns, and the eigenvectors enter only through sign-free quadratic forms).
 
 **Messages** are per-sender values: the payloads a vehicle publishes at step ``k`` reach every
 other vehicle at step ``k + 1`` (the runner without latency), and each receiver keeps the newest
@@ -33,7 +35,6 @@ from numba import njit
 from onboard.control.rigidity import BARRIER_FLOOR
 from onboard.estimation.distributed_eigen import MAX_BLOCK_NORM2, N_TRIVIAL, RITZ_RCOND, TT_RCOND
 from onboard.rigidity_layer import BLEND_FLOOR, EIGEN_AGREEMENT, FRAME_MAX_AGE_S, ROUND_TIMEOUT_S
-from sim.rigidity_lapack import dgesv, dsyevd
 
 # indices of the float parameters (:func:`sim.compiled_rigidity.parameters`)
 (
@@ -351,6 +352,121 @@ def mm_tn(a, b):
     return out
 
 
+@njit(cache=True, error_model="numpy")
+def lu_solve(a, b):
+    """``(pivots |diag U| (n,), x (n, k))`` of ``a x = b`` by LU with partial pivoting (LAPACK's
+    ``dgesv`` algorithm, for a 7x7 system, without its call overhead). A zero pivot gives a
+    non-finite ``x``."""
+    n = a.shape[0]
+    kk = b.shape[1]
+    lu = a.copy()
+    x = b.copy()
+    piv = np.empty(n)
+    for c in range(n):
+        best = c
+        for r in range(c + 1, n):
+            if abs(lu[r, c]) > abs(lu[best, c]):
+                best = r
+        if best != c:
+            for q in range(n):
+                lu[c, q], lu[best, q] = lu[best, q], lu[c, q]
+            for q in range(kk):
+                x[c, q], x[best, q] = x[best, q], x[c, q]
+        pivot = lu[c, c]
+        piv[c] = abs(pivot)
+        for r in range(c + 1, n):
+            f = lu[r, c] / pivot
+            lu[r, c] = f
+            for q in range(c + 1, n):
+                lu[r, q] -= f * lu[c, q]
+            for q in range(kk):
+                x[r, q] -= f * x[c, q]
+    for c in range(n - 1, -1, -1):
+        for q in range(kk):
+            acc = x[c, q]
+            for r in range(c + 1, n):
+                acc -= lu[c, r] * x[r, q]
+            x[c, q] = acc / lu[c, c]
+    return piv, x
+
+
+@njit(cache=True)
+def sym_eig(a):
+    """Eigenvalues ascending ``(n,)`` and eigenvectors (columns) of the symmetric matrix whose
+    upper triangle is ``a``'s (LAPACK's ``dsyevd`` convention), by cyclic Jacobi rotations: for
+    the 3x3 Ritz problems of the eigen-estimate, a tenth of a LAPACK call. Eigenvectors are
+    defined up to sign (every use of them here is sign-free)."""
+    n = a.shape[0]
+    m = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            m[i, j] = a[i, j]
+            m[j, i] = a[i, j]
+    v = np.eye(n)
+    for _ in range(60):
+        off = 0.0
+        scale = 0.0
+        for i in range(n):
+            scale += m[i, i] * m[i, i]
+            for j in range(i + 1, n):
+                off += m[i, j] * m[i, j]
+        if not off > 1e-30 * scale:  # converged (or not finite)
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                if m[p, q] == 0.0:
+                    continue
+                theta = (m[q, q] - m[p, p]) / (2.0 * m[p, q])
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for r in range(n):
+                    mrp, mrq = m[r, p], m[r, q]
+                    m[r, p] = c * mrp - s * mrq
+                    m[r, q] = s * mrp + c * mrq
+                for r in range(n):
+                    mpr, mqr = m[p, r], m[q, r]
+                    m[p, r] = c * mpr - s * mqr
+                    m[q, r] = s * mpr + c * mqr
+                m[p, q] = 0.0  # what the rotation is for (it leaves round-off there)
+                m[q, p] = 0.0
+                for r in range(n):
+                    vrp, vrq = v[r, p], v[r, q]
+                    v[r, p] = c * vrp - s * vrq
+                    v[r, q] = s * vrp + c * vrq
+    w = np.empty(n)
+    for i in range(n):
+        w[i] = m[i, i]
+    order = np.argsort(w)
+    return w[order], v[:, order].copy()
+
+
+@njit(cache=True)
+def ritz_blocks(p_own, v_own, p_nbr, v_nbr, coef, c_ritz, r):
+    """:meth:`onboard.estimation.distributed_eigen.DistributedEigenEstimator.ritz_blocks`:
+    ``y_jm = (V_j - T_j coef) c_m`` ``(M + 1, 3, r)`` for the agent (row 0) and its ``M``
+    neighbours, ``T_j`` from the positions."""
+    m_n = p_nbr.shape[0]
+    kk = v_own.shape[1]
+    out = np.zeros((m_n + 1, 3, r))
+    res = np.empty((3, kk))
+    for q in range(m_n + 1):
+        t = trivial_block(p_own if q == 0 else p_nbr[q - 1])
+        for c in range(3):
+            for col in range(kk):
+                acc = 0.0
+                for a in range(N_TRIVIAL):
+                    acc += t[c, a] * coef[a, col]
+                res[c, col] = (v_own[c, col] if q == 0 else v_nbr[q - 1, c, col]) - acc
+        for c in range(3):
+            for m in range(r):
+                acc = 0.0
+                for col in range(kk):
+                    acc += res[c, col] * c_ritz[col, m]
+                out[q, c, m] = acc
+    return out
+
+
 @njit(cache=True)
 def trivial_block(p):
     """:func:`onboard.estimation.distributed_eigen.trivial_motion_block`: ``T_i`` ``(3, 7)``."""
@@ -427,17 +543,12 @@ def ritz(x, kk):
     tt = unpack_sym(x, b0, N_TRIVIAL)
     vv = unpack_sym(x, b1, kk)
     vmv = unpack_sym(x, b2, kk)
-    lu, coef, info = dgesv(tt, tv)
-    p_min = np.inf
-    p_max = 0.0
-    for q in range(N_TRIVIAL):
-        p_min = min(p_min, abs(lu[q, q]))
-        p_max = max(p_max, abs(lu[q, q]))
-    if info != 0 or not np.all(np.isfinite(coef)) or not p_min > TT_RCOND * p_max:
+    piv, coef = lu_solve(tt, tv)
+    if not (np.all(np.isfinite(coef)) and piv.min() > TT_RCOND * piv.max()):
         coef = np.zeros((N_TRIVIAL, kk))
     g = vv - mm_tn(tv, coef)
-    ev, u, info = dsyevd(g)
-    top = ev[-1] if info == 0 else 0.0
+    ev, u = sym_eig(g)
+    top = ev[-1]
     if not top > 0.0:
         return np.zeros(0), np.zeros((kk, 0)), coef
     keep = np.flatnonzero(ev > RITZ_RCOND * top)
@@ -446,8 +557,8 @@ def ritz(x, kk):
         sq = math.sqrt(ev[q])
         for a in range(kk):
             w_half[a, c] = u[a, q] / sq
-    theta, s, info = dsyevd(mm(mm_tn(w_half, vmv), w_half))
-    if info != 0:
+    theta, s = sym_eig(mm(mm_tn(w_half, vmv), w_half))
+    if not np.all(np.isfinite(theta)):
         return np.zeros(0), np.zeros((kk, 0)), coef
     return theta, mm(w_half, s), coef
 
@@ -653,6 +764,8 @@ def simulate(
     o_eig_tgt = np.zeros((n, n), np.bool_)
     o_eig_per = np.zeros((n, n, per_len))
 
+    ax = np.zeros(n_c)
+    az = np.zeros(n_c)
     u_cmd = np.zeros((n, 3))
     w_cmd = np.zeros(n)
     n_rec = n_steps // record_every + 1
@@ -891,27 +1004,16 @@ def simulate(
                 if has_ritz[i]:
                     nt = n_theta[i]
                     wts = blend(theta[i, :nt], prm[P_SOFTMIN_TAU])
-                    cr = np.ascontiguousarray(c_ritz[i, :, :nt])
-                    cf = coef[i]
-                    y_own = mm(v_i - mm(t_i, cf), cr)
-                    y_nbr = np.empty((n_cand, 3, nt))
-                    for q in range(n_cand):
-                        y_nbr[q] = mm(v_cand[q] - mm(trivial_block(p_cand[q]), cf), cr)
+                    y = ritz_blocks(p_own, v_i, p_cand, v_cand, coef[i], c_ritz[i], nt)
                     for m in range(nt):
                         if wts[m] == 0.0:
                             continue
                         g_m, g_m_yaw = form_gradient_only(
-                            b_c,
-                            d_c,
-                            cos_c,
-                            h_c,
-                            w_c,
-                            dhr_c,
-                            dhy_c,
-                            y_own[:, m].copy(),
-                            y_nbr[:, :, m].copy(),
+                            b_c, d_c, cos_c, h_c, w_c, dhr_c, dhy_c, y[0, :, m], y[1:, :, m]
                         )
-                        g_form = g_form + wts[m] * g_m
+                        for q in range(n_cand + 1):
+                            for c in range(3):
+                                g_form[q, c] = g_form[q, c] + wts[m] * g_m[q, c]
                         g_form_yaw += wts[m] * g_m_yaw
                 # DistributedEigenEstimator.step
                 phi = consensus_input(t_i, v_i, mv_i)
@@ -924,22 +1026,26 @@ def simulate(
                     xs[i] = phi
                     zs[i] = 0.0
                     x_none[i] = False
+                # round_consensus.pi_round with Metropolis weights, and max_round
                 a_sum = 0.0
-                ax = np.zeros(n_c)
-                az = np.zeros(n_c)
+                ax.fill(0.0)
+                az.fill(0.0)
                 top = -np.inf
                 for j in range(n):
                     if fresh[j]:
                         a_j = 1.0 / (1.0 + max(float(k_nb), eig_state[j, st_len - 2]))
                         a_sum += a_j
-                        ax += a_j * eig_state[j, :n_c]
-                        az += a_j * eig_state[j, n_c : 2 * n_c]
+                        for q in range(n_c):
+                            ax[q] += a_j * eig_state[j, q]
+                            az[q] += a_j * eig_state[j, n_c + q]
                         top = max(top, eig_state[j, st_len - 1])
-                dx = a_sum * xs[i] - ax
-                dz = a_sum * zs[i] - az
-                x_new = xs[i] + prm[P_E_G] * (phi - xs[i]) - prm[P_E_P] * dx + prm[P_E_I] * dz
-                zs[i] = zs[i] - prm[P_E_I] * dx
-                xs[i] = x_new
+                e_g, e_p, e_i = prm[P_E_G], prm[P_E_P], prm[P_E_I]
+                for q in range(n_c):
+                    dxq = a_sum * xs[i, q] - ax[q]
+                    dzq = a_sum * zs[i, q] - az[q]
+                    xq = xs[i, q]
+                    xs[i, q] = xq + e_g * (phi[q] - xq) - e_p * dxq + e_i * dzq
+                    zs[i, q] = zs[i, q] - e_i * dxq
                 top = max(s_bar[i], top)
                 s_bar[i] = max(s_i, prm[P_EIG_FORGET] * top)
                 th, cr_new, cf_new = ritz(xs[i], kk)
@@ -956,10 +1062,21 @@ def simulate(
                 vv = unpack_sym(xs[i], N_TRIVIAL * kk + 28, kk)
                 for c in range(kk):
                     vv[c, c] -= 1.0
-                v_new = (
-                    v_i - alpha * mv_i - prm[P_EIG_KT] * trivial - 0.5 * prm[P_EIG_KN] * mm(v_i, vv)
-                )
-                if not (v_new * v_new).sum() <= MAX_BLOCK_NORM2:
+                vvv = mm(v_i, vv)
+                v_new = np.empty((3, kk))
+                k_t, k_n2 = prm[P_EIG_KT], 0.5 * prm[P_EIG_KN]
+                norm2 = 0.0
+                for c in range(3):
+                    for col in range(kk):
+                        x_ = (
+                            v_i[c, col]
+                            - alpha * mv_i[c, col]
+                            - k_t * trivial[c, col]
+                            - k_n2 * vvv[c, col]
+                        )
+                        v_new[c, col] = x_
+                        norm2 += x_ * x_
+                if not norm2 <= MAX_BLOCK_NORM2:
                     restarts[i] += 1
                     if restarts[i] > restart_v.shape[1]:
                         raise ValueError("more restarts of the eigen-estimate than drawn")

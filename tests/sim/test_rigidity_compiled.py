@@ -2,11 +2,11 @@
 
 Why the engines do not agree bit for bit: the kernel sums the small matrix products of the star
 (paper 003 eq. 16, 21), the consensus inputs and the Ritz blocks with loops, where the layer's
-numpy calls BLAS (another summation order, fused multiply-adds), so the last bit of many
-intermediates differs; the Ritz problem itself calls the same LAPACK routines with the same
-inputs (``sim/rigidity_lapack.py``). Over the short runs here (localization, eigen-estimate and
-every action, the warm-up shortened so the team moves) the differences stay at round-off,
-bounded below at ``1e-9``.
+numpy calls BLAS (another summation order, fused multiply-adds), and solves the Ritz problem
+(a 7x7 system, two 3x3 symmetric eigenproblems) with an LU and Jacobi rotations where the layer
+calls LAPACK, so the last bits of many intermediates differ. Over the short runs here
+(localization, eigen-estimate and every action, the warm-up shortened so the team moves) the
+differences stay at round-off, bounded below at ``1e-9``.
 """
 
 from __future__ import annotations
