@@ -765,6 +765,12 @@ def simulate(
     o_eig_per = np.zeros((n, n, per_len))
 
     ax = np.zeros(n_c)
+    live_buf = np.empty(n, np.int64)
+    is_live_buf = np.zeros(n, np.bool_)
+    seen_buf = np.empty(n, np.int64)
+    fresh_buf = np.zeros(n, np.bool_)
+    cand_buf = np.empty(n, np.int64)
+    pos_buf = np.full(n, -1, np.int64)
     az = np.zeros(n_c)
     u_cmd = np.zeros((n, 3))
     w_cmd = np.zeros(n)
@@ -839,18 +845,19 @@ def simulate(
         for i in range(n):
             yaw_odo = yaw[i] + offsets[i]
             # fresh neighbour estimates, ascending (the layer's ``live``)
-            live = np.empty(n - 1, np.int64)
+            live = live_buf
             n_live = 0
             for j in range(n):
                 if j != i and loc_has[j] and t - loc_t[j] <= timeout:
                     live[n_live] = j
                     n_live += 1
             live = live[:n_live]
-            is_live = np.zeros(n, np.bool_)
+            is_live = is_live_buf
+            is_live.fill(False)
             for j in live:
                 is_live[j] = True
             # the current frame's bearings to live targets, ascending
-            seen = np.empty(n_live, np.int64)
+            seen = seen_buf
             n_seen = 0
             for j in live:
                 if fr_seen[i, j] and frame_fresh:
@@ -863,11 +870,12 @@ def simulate(
             beta = np.empty((n_seen, 3))
             for q in range(n_seen):
                 beta[q] = fr_beta[i, seen[q]]
-            fresh = np.zeros(n, np.bool_)
+            fresh = fresh_buf
+            fresh.fill(False)
             for j in range(n):
                 if j != i and eig_has[j] and t - eig_t[j] <= timeout:
                     fresh[j] = True
-            cand = np.empty(n_live, np.int64)
+            cand = cand_buf
             n_cand = 0
             for j in live:
                 if fresh[j]:
@@ -907,7 +915,8 @@ def simulate(
             for q in range(n_cand):
                 p_cand[q] = loc_p[cand[q]]
             _, d_c, b_c, cos_c, h_c, w_c, dhr_c, dhy_c = star(p_own, yaw_hat[i], p_cand, prm)
-            pos = np.full(n, -1, np.int64)
+            pos = pos_buf
+            pos.fill(-1)
             for q in range(n_cand):
                 pos[cand[q]] = q
             inside = True
