@@ -63,6 +63,8 @@ def scenario(
         raise typer.BadParameter("loss must be in [0, 1)")
     if engine not in ("cores", "compiled"):
         raise typer.BadParameter(f"unknown engine {engine!r}; choose 'cores' or 'compiled'")
+    if engine == "compiled" and name in RIGIDITY_SCENARIOS and (loss > 0.0 or latency > 0.0):
+        raise typer.BadParameter("the compiled engine runs rigidity-* without loss or latency")
     console = Console(stderr=True)
     with Progress(
         TextColumn(f"[bold]{name}[/] seed {seed}"),

@@ -85,6 +85,16 @@ def test_what_the_kernel_does_not_model_is_refused_by_name(option: str, value: f
         run_compiled_rigidity("rigidity-tracking", duration_s=0.01, **{option: value})
 
 
+def test_cli_refuses_loss_on_the_compiled_rigidity_engine() -> None:
+    from sim.scenario_cli import scenario
+
+    app = typer.Typer()
+    app.command()(scenario)
+    args = ["rigidity-tracking", "--duration", "0.1", "--engine", "compiled", "--loss", "0.1"]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2 and "without loss" in res.output
+
+
 def test_bearing_noise_is_drawn_as_the_runner_draws_it() -> None:
     kw = {"seed": 3, "duration_s": 0.1, "bearing_noise_rad": 0.01}
     cores = run_rigidity_scenario("rigidity-tracking", **kw)
