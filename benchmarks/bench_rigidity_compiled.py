@@ -32,8 +32,8 @@ def compile_time() -> float:
     """Seconds of the first compiled call in a fresh process with an empty numba cache."""
     code = (
         "import time; t = time.perf_counter();"
-        "from sim.compiled_rigidity import run_compiled_rigidity;"
-        "run_compiled_rigidity('rigidity-tracking', 0, 0.01);"
+        "from sim.rigidity_scenarios import run_rigidity_scenario;"
+        "run_rigidity_scenario('rigidity-tracking', 0, 0.01, engine='compiled');"
         "print(time.perf_counter() - t)"
     )
     with tempfile.TemporaryDirectory() as cache:
@@ -55,12 +55,15 @@ def main() -> None:
     if args.quick:
         args.cores_s, args.compiled_s = 1.0, 6.0
 
-    from sim.compiled_rigidity import run_compiled_rigidity
     from sim.rigidity_scenarios import run_rigidity_scenario
 
     name = args.scenario
-    _, first_w, _ = timed(lambda: run_compiled_rigidity(name, 0, 0.01))  # load or compile
-    comp, comp_w, comp_c = timed(lambda: run_compiled_rigidity(name, 0, args.compiled_s))
+    _, first_w, _ = timed(
+        lambda: run_rigidity_scenario(name, 0, 0.01, engine="compiled")
+    )  # load or compile
+    comp, comp_w, comp_c = timed(
+        lambda: run_rigidity_scenario(name, 0, args.compiled_s, engine="compiled")
+    )
     _, cores_w, cores_c = timed(lambda: run_rigidity_scenario(name, 0, args.cores_s))
     _, summ_w, _ = timed(comp.summary)
     rows = [

@@ -1,9 +1,10 @@
 """The compiled engine for paper 003's rigidity scenarios (``--engine compiled``).
 
-:func:`run_compiled_rigidity` takes what :func:`sim.rigidity_scenarios.run_rigidity_scenario`
-takes and returns the same :class:`sim.rigidity_scenarios.RigidityRecording`, from
-:func:`sim.rigidity_kernel.simulate` instead of N Python agent cores with their rigidity
-layers. The cores remain the reference (and what the daemons fly); the two engines agree on the
+:func:`run_compiled_rigidity_team` runs the team that
+:func:`sim.rigidity_scenarios.run_rigidity_scenario` sets up (``engine="compiled"``) and returns
+what that function records (the runner's :class:`sim.runner.Recording` and the layers'
+estimates), from :func:`sim.rigidity_kernel.simulate` instead of N Python agent cores with their
+rigidity layers. The cores remain the reference (and what the daemons fly); the two engines agree on the
 same seed to round-off (``tests/sim/test_rigidity_compiled.py`` bounds the difference).
 
 Supported: the three rigidity scenarios, any :class:`onboard.agent_config.AgentConfig` gains,
@@ -215,56 +216,3 @@ def run_compiled_rigidity_team(
     rec.yaw_hat_rad[:] = y_hat0
     counters = {"nonfinite_actions": int(nonfinite), "eigen_restarts": int(restarts)}
     return rec, rlam, rph, ryh, counters
-
-
-def run_compiled_rigidity(
-    name: str,
-    seed: int = 0,
-    duration_s: float = 60.0,
-    progress: Callable[[float], None] | None = None,
-    config_overrides: dict[str, object] | None = None,
-    **runner_options: object,
-):
-    """:func:`sim.rigidity_scenarios.run_rigidity_scenario` on the compiled engine."""
-    from sim.rigidity_scenarios import (
-        DT_S,
-        FOV_DEG,
-        RANGE_M,
-        RIGIDITY_SCENARIOS,
-        RigidityRecording,
-        agent_configs,
-        target_path,
-    )
-
-    if name not in RIGIDITY_SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(RIGIDITY_SCENARIOS)}")
-    configs, p0, yaw0 = agent_configs(name, seed, **(config_overrides or {}))
-    path = target_path(name, seed, p0.mean(axis=0))
-    options: dict[str, object] = {
-        "dt_s": DT_S,
-        "record_every": 50,
-        "fov_deg": FOV_DEG,
-        "sensing_range_m": RANGE_M,
-        "range_pairs": ((3, 4),),
-        "target_path": path,
-    }
-    options.update(runner_options)
-    rc = RunnerConfig(duration_s=duration_s, seed=seed, **options)  # type: ignore[arg-type]
-    rec, lam, p_hat, yaw_hat, _ = run_compiled_rigidity_team(configs, p0, yaw0, rc, path)
-    if progress is not None:
-        progress(1.0)
-    cfg = configs[0]
-    return RigidityRecording(
-        rec=rec,
-        name=name,
-        seed=seed,
-        targets_ned=np.stack([np.asarray(path(float(t))).reshape(-1, 3) for t in rec.t_s]),
-        lambda_hat=lam,
-        p_hat_ned=p_hat,
-        yaw_hat_rad=yaw_hat,
-        track_target=[c.track_target for c in configs],
-        model=SensingModel(cfg.fov_deg, cfg.range_m),
-        lambda_min=cfg.lambda_min,
-        lambda_safe=cfg.lambda_safe,
-        warmup_s=cfg.rigidity_warmup_s,
-    )

@@ -353,13 +353,7 @@ def run_rigidity_scenario(
 
     ``engine``: ``"cores"`` steps one agent core per vehicle (the reference), ``"compiled"`` the
     same team in :mod:`sim.compiled_rigidity`."""
-    if engine == "compiled":
-        from sim.compiled_rigidity import run_compiled_rigidity
-
-        return run_compiled_rigidity(
-            name, seed, duration_s, progress, config_overrides, **runner_options
-        )
-    if engine != "cores":
+    if engine not in ("cores", "compiled"):
         raise ValueError(f"unknown engine {engine!r}; choose 'cores' or 'compiled'")
     if name not in RIGIDITY_SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(RIGIDITY_SCENARIOS)}")
@@ -392,7 +386,16 @@ def run_rigidity_scenario(
             p_hat[r, i] = layer.loc.p_hat_ned
             yaw_hat[r, i] = layer.yaw_hat
 
-    rec = run(configs, p0, yaw0, rc, progress, on_record=on_record)  # type: ignore[arg-type]
+    if engine == "compiled":
+        from sim.compiled_rigidity import run_compiled_rigidity_team
+
+        rec, lam, p_hat, yaw_hat, _ = run_compiled_rigidity_team(configs, p0, yaw0, rc, path)
+        for r, t in enumerate(rec.t_s.tolist()):
+            targets[r] = path(t)
+        if progress is not None:
+            progress(1.0)
+    else:
+        rec = run(configs, p0, yaw0, rc, progress, on_record=on_record)  # type: ignore[arg-type]
     cfg = configs[0]
     return RigidityRecording(
         rec=rec,

@@ -18,8 +18,12 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from sim.compiled_rigidity import run_compiled_rigidity
 from sim.rigidity_scenarios import RIGIDITY_SCENARIOS, run_rigidity_scenario
+
+
+def run_compiled_rigidity(name: str, **kw):
+    return run_rigidity_scenario(name, engine="compiled", **kw)
+
 
 DURATION_S = 0.6
 OVERRIDES = {"rigidity_warmup_s": 0.3}
