@@ -13,8 +13,8 @@ bearing noise (drawn from the runner's generator in the runner's order). Refused
 noise and bias, camera latency, autopilot lags, the centralized eigen-estimate, a rigidity
 period, SfM distances, and graphs other than the complete one.
 
-The first call compiles the kernel (about a minute on a small machine); numba caches it next to
-the sources, so later processes load it in a few seconds.
+The first call compiles the kernel (65 s of CPU, 2-3 min on a loaded 2-core machine); numba
+caches it next to the sources, so later processes load it in about a second.
 """
 
 from __future__ import annotations

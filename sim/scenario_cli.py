@@ -33,7 +33,7 @@ def scenario(
         typer.Option(
             help="'cores' steps one agent core per vehicle (the reference), "
             "'compiled' the same team compiled with numba (scale-*: ~250x real time; "
-            "rigidity-*: no loss or latency; the first run compiles it, 30-60 s)"
+            "rigidity-*: ~25x, no loss or latency; the first run compiles it, 1-3 min)"
         ),
     ] = "cores",
 ) -> None:
