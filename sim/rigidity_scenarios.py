@@ -347,9 +347,15 @@ def run_rigidity_scenario(
     duration_s: float = 60.0,
     progress: Callable[[float], None] | None = None,
     config_overrides: dict[str, object] | None = None,
+    engine: str = "cores",
     **runner_options: object,
 ) -> RigidityRecording:
-    """Run rigidity scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`."""
+    """Run rigidity scenario ``name``; ``runner_options`` go to :class:`sim.runner.RunnerConfig`.
+
+    ``engine``: ``"cores"`` steps one agent core per vehicle (the reference), ``"compiled"`` the
+    same team in :mod:`sim.compiled_rigidity`."""
+    if engine not in ("cores", "compiled"):
+        raise ValueError(f"unknown engine {engine!r}; choose 'cores' or 'compiled'")
     if name not in RIGIDITY_SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(RIGIDITY_SCENARIOS)}")
     configs, p0, yaw0 = agent_configs(name, seed, **(config_overrides or {}))
@@ -381,7 +387,16 @@ def run_rigidity_scenario(
             p_hat[r, i] = layer.loc.p_hat_ned
             yaw_hat[r, i] = layer.yaw_hat
 
-    rec = run(configs, p0, yaw0, rc, progress, on_record=on_record)  # type: ignore[arg-type]
+    if engine == "compiled":
+        from sim.compiled_rigidity import run_compiled_rigidity_team
+
+        rec, lam, p_hat, yaw_hat, _ = run_compiled_rigidity_team(configs, p0, yaw0, rc, path)
+        for r, t in enumerate(rec.t_s.tolist()):
+            targets[r] = path(t)
+        if progress is not None:
+            progress(1.0)
+    else:
+        rec = run(configs, p0, yaw0, rc, progress, on_record=on_record)  # type: ignore[arg-type]
     cfg = configs[0].rigidity
     return RigidityRecording(
         rec=rec,

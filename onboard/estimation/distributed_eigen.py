@@ -72,6 +72,12 @@ _TRIU_T = np.triu_indices(N_TRIVIAL)
 _N_TRIU_T = len(_TRIU_T[0])
 MAX_BLOCK_NORM2 = 1e4
 """An agent's ``|V_i|^2`` above this (the equilibrium is about ``k``) means divergence."""
+TT_RCOND = 1e-9
+"""``T^T T / N`` whose LU pivots span more than this ratio is singular: fewer than three agents
+are in the average yet (an agent's first round averages its own ``T_i^T T_i``, of rank 3), and
+the trivial coefficients are not defined. Solved anyway, its round-off-sized pivots gave
+coefficients of any size, which kicked ``V`` by ``k_t T_i coef`` (and made the first rounds
+depend on the last bit of ``T_i``)."""
 RITZ_RCOND = 1e-6
 """Directions of ``G'`` below this fraction of its largest eigenvalue are left out of the Ritz
 problem (the columns of ``V`` have (nearly) collapsed onto each other or onto trivial motions)."""
@@ -192,8 +198,9 @@ def ritz(avg: Averages) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     k = avg.vv.shape[0]
     # LAPACK directly: these are 3x3 and 7x7 problems, where numpy's wrappers cost 5x the work
-    _, _, coef, info = lapack.dgesv(avg.tt, avg.tv)
-    if info != 0 or not np.isfinite(coef).all():
+    lu, _, coef, info = lapack.dgesv(avg.tt, avg.tv)
+    pivots = np.abs(np.diag(lu))
+    if info != 0 or not np.isfinite(coef).all() or not pivots.min() > TT_RCOND * pivots.max():
         coef = np.zeros((N_TRIVIAL, k))
     ev, u, info = lapack.dsyevd(avg.vv - avg.tv.T @ coef)  # G' (symmetric)
     top = float(ev[-1]) if info == 0 else 0.0
