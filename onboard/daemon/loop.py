@@ -90,6 +90,11 @@ MAX_GAP_S = 0.5
 PEER_LOST_HOLD_S = 2.0
 """A peer without a liveliness token, or without a peer payload, for this long is out of the
 graph (:mod:`onboard.daemon.presence`: a stalled vehicle keeps its token)."""
+FIRST_CONNECT_GRACE_S = 15.0
+"""Wall seconds a starting daemon waits for its autopilot's first telemetry before the status
+says ``autopilot_lost`` (until then the phase ``connecting`` says it all: the demo's vehicles
+each raised the alarm while their simulated autopilots booted). Once connected, a lost link
+raises it at once."""
 STEP_ERROR_ALARM_S = 1.0
 """After an exception escaped a core tick the vehicle holds with alarm ``step_error`` this long."""
 
@@ -250,6 +255,8 @@ class AgentDaemon:
         self.presence = PeerPresence(self._graph_ids, agent_id, PEER_LOST_HOLD_S)
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
+        self.first_connect_grace_s = FIRST_CONNECT_GRACE_S
+        self._was_connected = False
         self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.safety.peer_timeout_s)
         self.seq_window = SeqWindow()
         self._skewed: frozenset[int] = frozenset()
@@ -450,7 +457,7 @@ class AgentDaemon:
         status_every = max(1, round(c.rates.core / c.rates.status))
         outbox = []
         step = 0
-        next_tick = last_tick_mono = time.monotonic()
+        next_tick = last_tick_mono = started_mono = time.monotonic()
         while not self.stop_event.is_set():
             next_tick += self._tick_period_s()
             delay = next_tick - time.monotonic()
@@ -473,10 +480,13 @@ class AgentDaemon:
                 self.presence.restart(now_s)
             step += 1
             if not tel.connected:  # the core waits; the ground station still hears why
-                self._alarms = [Alarm.AUTOPILOT_LOST.value]
+                waited_s = time.monotonic() - started_mono
+                lost = self._was_connected or waited_s > self.first_connect_grace_s
+                self._alarms = [Alarm.AUTOPILOT_LOST.value] if lost else []
                 if step % status_every == 0:
                     self._publish_status(now_s, tel)
                 continue
+            self._was_connected = True
             try:
                 self._handle_commands()
                 self._update_peers(now_s)

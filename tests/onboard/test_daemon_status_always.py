@@ -120,11 +120,23 @@ def _run(tmp_path, link, prepare=lambda daemon: None, n: int = 3) -> tuple[_Peer
 
 
 def test_a_daemon_without_its_autopilot_publishes_status_saying_so(tmp_path):
-    peers, _ = _run(tmp_path, _Link(connected=False))
+    def no_grace(daemon: AgentDaemon) -> None:
+        daemon.first_connect_grace_s = 0.0
+
+    peers, _ = _run(tmp_path, _Link(connected=False), no_grace)
     assert len(peers.statuses) >= 3, "no status while the autopilot link is down"
     last = peers.statuses[-1]
     assert "autopilot_lost" in last.alarms
     assert last.phase == "connecting" and last.stamp_s > 0.0
+
+
+def test_a_booting_autopilot_is_connecting_not_lost(tmp_path):
+    """Within the first-connection grace the status goes out without the alarm: the phase
+    says the daemon is connecting (every demo vehicle raised it while its autopilot booted)."""
+    peers, _ = _run(tmp_path, _Link(connected=False))
+    assert len(peers.statuses) >= 3
+    assert all("autopilot_lost" not in s.alarms for s in peers.statuses)
+    assert peers.statuses[-1].phase == "connecting"
 
 
 def test_a_daemon_with_nan_estimates_publishes_status_saying_so(tmp_path):
