@@ -56,22 +56,35 @@ def test_live_estimator_feeds_the_loop_from_zenoh_and_counts_bad_samples():
     messages: list[str] = []
     est = LiveEstimator(sub_session, "alpha", EkfLoop(), on_event=messages.append).start()
     try:
-        time.sleep(0.5)  # the subscriptions reach the publisher
-        pub_session.put("bf/alpha/1/peer/motion", b"\xc1 not msgpack")
+        # malformed probes until one arrives: the subscriptions have reached the publisher
+        # (no fixed sleep: under load that took longer than any guess)
+        deadline = time.monotonic() + 10.0
+        while est.received == 0 and time.monotonic() < deadline:
+            pub_session.put("bf/alpha/1/peer/motion", b"\xc1 not msgpack")
+            est.pump(0.1)
         pub_session.put(peer_key("beta", 1, "motion"), b"other fleet: not subscribed")
         _feed(_Publisher(pub_session, "alpha"), 0.0, 1.0)
+        good = 20 * 3 + 5 * 3 * 2
         deadline = time.monotonic() + 10.0
-        while est.received < 1 + 20 * 3 + 5 * 3 * 2 and time.monotonic() < deadline:
+        while (
+            est.received < est.loop.counts["undecodable_malformed"] + good
+            and time.monotonic() < deadline
+        ):
             est.pump(0.1)
+        time.sleep(0.3)  # anything else (the other fleet's sample) would arrive by now
+        est.pump(0.1)
     finally:
         est.close()
         pub_session.close()
         sub_session.close()
     loop = est.loop
-    assert est.received == 1 + 20 * 3 + 5 * 3 * 2  # the other fleet's sample never arrives
-    assert loop.counts["undecodable_malformed"] == 1
-    assert loop.ids == [1, 2, 3] and loop.updates > 0
-    assert [m.split(" ", 1)[1] for m in messages] == [
+    probes = loop.counts["undecodable_malformed"]
+    assert probes >= 1  # every malformed probe that arrived was counted, none crashed the loop
+    assert est.received == probes + good  # the other fleet's sample never arrives
+    # each key has its own subscription: which vehicle is heard first (the reference) is the
+    # network's choice, that all three join is not
+    assert sorted(loop.ids) == [1, 2, 3] and loop.updates > 0
+    assert sorted(m.split(" ", 1)[1] for m in messages) == [
         f"vehicle {i} joined the filter" for i in (1, 2, 3)
     ]
     s = loop.summary()
