@@ -20,8 +20,9 @@ the eigensolver returns, and the eigenvectors enter only through sign-free quadr
 round(latency / dt)``, as :func:`sim.runner.run` delivers), each copy lost when
 :func:`sim.draws.lost` says so for ``(k, sender, receiver, kind)`` (the runner's draw, so both
 engines lose the same copies). Each receiver keeps the newest of each kind per sender, with its
-stamp, as the layer does (``loc_*[receiver, sender]``, ``eig_*[receiver, sender]``, with only the
-receiver's own block of the per-target parts). While it waits for a round, a vehicle sends its
+stamp, as the layer does (``loc_*[receiver, sender]`` with only the receiver's own block of the
+per-target parts; ``eig_*[receiver, sender]`` with the version of the share it holds, whose
+content is ``sh_*[sender, version % n_ver]``). While it waits for a round, a vehicle sends its
 last eigen share again (``ls_*``), as ``RigidityLayer.advance`` does.
 
 Layouts: ``V`` blocks ``(3, k)``; the consensus vector ``x`` ``(n_c,)`` of
@@ -764,17 +765,20 @@ def simulate(
     eig_t = np.zeros((n, n))
     eig_l = np.zeros((n, n))
     eig_round = np.zeros((n, n), np.int64)
-    eig_state = np.zeros((n, n, st_len))
-    eig_tgt = np.zeros((n, n), np.bool_)
-    eig_per = np.zeros((n, n, per_len))
+    eig_ver = np.zeros((n, n), np.int64)
     # each agent's last eigen share (re-sent while it waits for a round)
     ls_has = np.zeros(n, np.bool_)
     ls_t = np.zeros(n)
     ls_l = np.zeros(n)
     ls_round = np.zeros(n, np.int64)
-    ls_state = np.zeros((n, st_len))
-    ls_tgt = np.zeros((n, n), np.bool_)
-    ls_per = np.zeros((n, n, per_len))
+    ls_ver = np.zeros(n, np.int64)
+    # every agent's shares by version (a receiver holds a version, not a copy): a version
+    # is overwritten ``n_ver`` versions later, when it is stale (one version per step at most)
+    n_ver = int(min(timeout / dt, n_steps + 1.0)) + delay + 4
+    n_made = np.zeros(n, np.int64)
+    sh_state = np.zeros((n, n_ver, st_len))
+    sh_tgt = np.zeros((n, n_ver, n), np.bool_)
+    sh_per = np.zeros((n, n_ver, n, per_len))
     # what is published [slot, sender]: a ring of the last ``delay`` steps' payloads
     ring = delay
     o_loc_p = np.zeros((ring, n, 3))
@@ -784,9 +788,7 @@ def simulate(
     o_eig_t = np.zeros((ring, n))
     o_eig_l = np.zeros((ring, n))
     o_eig_round = np.zeros((ring, n), np.int64)
-    o_eig_state = np.zeros((ring, n, st_len))
-    o_eig_tgt = np.zeros((ring, n, n), np.bool_)
-    o_eig_per = np.zeros((ring, n, n, per_len))
+    o_eig_ver = np.zeros((ring, n), np.int64)
 
     ax = np.zeros(n_c)
     live_buf = np.empty(n, np.int64)
@@ -1013,18 +1015,20 @@ def simulate(
                     j = cand[q]
                     for c in range(3):
                         for col in range(kk):
-                            v_cand[q, c, col] = eig_state[i, j, 2 * n_c + c * kk + col]
+                            v_cand[q, c, col] = sh_state[
+                                j, eig_ver[i, j] % n_ver, 2 * n_c + c * kk + col
+                            ]
                 v_i = vmat[i]
                 mv = weighted_matvec(b_c, d_c, cos_c, w_c, v_i, v_cand)
                 s_parts = weighted_degree(d_c, cos_c, w_c)
                 total = np.zeros(per_len)
                 got = False
                 for j in range(n):
-                    if fresh[j] and eig_tgt[i, j]:
+                    if fresh[j] and sh_tgt[j, eig_ver[i, j] % n_ver, i]:
                         if got:
-                            total += eig_per[i, j]
+                            total += sh_per[j, eig_ver[i, j] % n_ver, i]
                         else:
-                            total[:] = eig_per[i, j]
+                            total[:] = sh_per[j, eig_ver[i, j] % n_ver, i]
                             got = True
                 mv_i = mv[0].copy()
                 for c in range(3):
@@ -1066,12 +1070,14 @@ def simulate(
                 top = -np.inf
                 for j in range(n):
                     if fresh[j]:
-                        a_j = 1.0 / (1.0 + max(float(k_nb), eig_state[i, j, st_len - 2]))
+                        a_j = 1.0 / (
+                            1.0 + max(float(k_nb), sh_state[j, eig_ver[i, j] % n_ver, st_len - 2])
+                        )
                         a_sum += a_j
                         for q in range(n_c):
-                            ax[q] += a_j * eig_state[i, j, q]
-                            az[q] += a_j * eig_state[i, j, n_c + q]
-                        top = max(top, eig_state[i, j, st_len - 1])
+                            ax[q] += a_j * sh_state[j, eig_ver[i, j] % n_ver, q]
+                            az[q] += a_j * sh_state[j, eig_ver[i, j] % n_ver, n_c + q]
+                        top = max(top, sh_state[j, eig_ver[i, j] % n_ver, st_len - 1])
                 e_g, e_p, e_i = prm[P_E_G], prm[P_E_P], prm[P_E_I]
                 for q in range(n_c):
                     dxq = a_sum * xs[i, q] - ax[q]
@@ -1119,26 +1125,29 @@ def simulate(
                 ls_has[i] = False  # after a restart the layer has no share to send
                 if not x_none[i]:
                     ls_has[i] = True
+                    ls_ver[i] = n_made[i]
+                    n_made[i] += 1
+                    vs = ls_ver[i] % n_ver
                     ls_t[i] = t
                     ls_l[i] = eig_lam[i]
                     ls_round[i] = rounds[i]
-                    ls_state[i, :n_c] = xs[i]
-                    ls_state[i, n_c : 2 * n_c] = zs[i]
+                    sh_state[i, vs, :n_c] = xs[i]
+                    sh_state[i, vs, n_c : 2 * n_c] = zs[i]
                     for c in range(3):
                         for col in range(kk):
-                            ls_state[i, 2 * n_c + c * kk + col] = v_new[c, col]
-                    ls_state[i, st_len - 2] = float(degree[i])
-                    ls_state[i, st_len - 1] = s_bar[i]
-                    ls_tgt[i] = False
+                            sh_state[i, vs, 2 * n_c + c * kk + col] = v_new[c, col]
+                    sh_state[i, vs, st_len - 2] = float(degree[i])
+                    sh_state[i, vs, st_len - 1] = s_bar[i]
+                    sh_tgt[i, vs] = False
                     for q in range(n_cand):
                         j = cand[q]
-                        ls_tgt[i, j] = True
+                        sh_tgt[i, vs, j] = True
                         for c in range(3):
                             for col in range(kk):
-                                ls_per[i, j, c * kk + col] = mv[q + 1, c, col]
-                        ls_per[i, j, 3 * kk] = s_parts[q + 1]
+                                sh_per[i, vs, j, c * kk + col] = mv[q + 1, c, col]
+                        sh_per[i, vs, j, 3 * kk] = s_parts[q + 1]
                         for c in range(3):
-                            ls_per[i, j, 3 * kk + 1 + c] = g_form[q + 1, c]
+                            sh_per[i, vs, j, 3 * kk + 1 + c] = g_form[q + 1, c]
                 lam[i] = eig_lam[i]
                 for c in range(3):
                     gp[i, c] = (g_form[0, c] + total[3 * kk + 1 + c]) / n
@@ -1155,9 +1164,7 @@ def simulate(
                 o_eig_t[slot, i] = ls_t[i]
                 o_eig_l[slot, i] = ls_l[i]
                 o_eig_round[slot, i] = ls_round[i]
-                o_eig_state[slot, i] = ls_state[i]
-                o_eig_tgt[slot, i] = ls_tgt[i]
-                o_eig_per[slot, i] = ls_per[i]
+                o_eig_ver[slot, i] = ls_ver[i]
 
             # 4. actions (RigidityLayer._actions)
             u = np.zeros(3)
@@ -1234,9 +1241,7 @@ def simulate(
                         eig_t[i, j] = o_eig_t[src, j]
                         eig_l[i, j] = o_eig_l[src, j]
                         eig_round[i, j] = o_eig_round[src, j]
-                        eig_state[i, j] = o_eig_state[src, j]
-                        eig_tgt[i, j] = o_eig_tgt[src, j, i]
-                        eig_per[i, j] = o_eig_per[src, j, i]
+                        eig_ver[i, j] = o_eig_ver[src, j]
         if k % record_every == 0:
             rec_p[r_idx] = p
             rec_yaw[r_idx] = yaw
