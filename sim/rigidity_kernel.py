@@ -21,8 +21,8 @@ round(latency / dt)``, as :func:`sim.runner.run` delivers), each copy lost when
 :func:`sim.draws.lost` says so for ``(k, sender, receiver, kind)`` (the runner's draw, so both
 engines lose the same copies). Each receiver keeps the newest of each kind per sender, with its
 stamp, as the layer does (``loc_*[receiver, sender]`` with only the receiver's own block of the
-per-target parts; ``eig_*[receiver, sender]`` with the version of the share it holds, whose
-content is ``sh_*[sender, version % n_ver]``). While it waits for a round, a vehicle sends its
+per-target parts; ``eig_*[receiver, sender]`` with the slot of the version of the share it
+holds, whose content is ``sh_*[sender, slot]``, ``slot = version % n_ver``). While it waits for a round, a vehicle sends its
 last eigen share again (``ls_*``), as ``RigidityLayer.advance`` does.
 
 Layouts: ``V`` blocks ``(3, k)``; the consensus vector ``x`` ``(n_c,)`` of
@@ -1015,20 +1015,18 @@ def simulate(
                     j = cand[q]
                     for c in range(3):
                         for col in range(kk):
-                            v_cand[q, c, col] = sh_state[
-                                j, eig_ver[i, j] % n_ver, 2 * n_c + c * kk + col
-                            ]
+                            v_cand[q, c, col] = sh_state[j, eig_ver[i, j], 2 * n_c + c * kk + col]
                 v_i = vmat[i]
                 mv = weighted_matvec(b_c, d_c, cos_c, w_c, v_i, v_cand)
                 s_parts = weighted_degree(d_c, cos_c, w_c)
                 total = np.zeros(per_len)
                 got = False
                 for j in range(n):
-                    if fresh[j] and sh_tgt[j, eig_ver[i, j] % n_ver, i]:
+                    if fresh[j] and sh_tgt[j, eig_ver[i, j], i]:
                         if got:
-                            total += sh_per[j, eig_ver[i, j] % n_ver, i]
+                            total += sh_per[j, eig_ver[i, j], i]
                         else:
-                            total[:] = sh_per[j, eig_ver[i, j] % n_ver, i]
+                            total[:] = sh_per[j, eig_ver[i, j], i]
                             got = True
                 mv_i = mv[0].copy()
                 for c in range(3):
@@ -1070,14 +1068,12 @@ def simulate(
                 top = -np.inf
                 for j in range(n):
                     if fresh[j]:
-                        a_j = 1.0 / (
-                            1.0 + max(float(k_nb), sh_state[j, eig_ver[i, j] % n_ver, st_len - 2])
-                        )
+                        a_j = 1.0 / (1.0 + max(float(k_nb), sh_state[j, eig_ver[i, j], st_len - 2]))
                         a_sum += a_j
                         for q in range(n_c):
-                            ax[q] += a_j * sh_state[j, eig_ver[i, j] % n_ver, q]
-                            az[q] += a_j * sh_state[j, eig_ver[i, j] % n_ver, n_c + q]
-                        top = max(top, sh_state[j, eig_ver[i, j] % n_ver, st_len - 1])
+                            ax[q] += a_j * sh_state[j, eig_ver[i, j], q]
+                            az[q] += a_j * sh_state[j, eig_ver[i, j], n_c + q]
+                        top = max(top, sh_state[j, eig_ver[i, j], st_len - 1])
                 e_g, e_p, e_i = prm[P_E_G], prm[P_E_P], prm[P_E_I]
                 for q in range(n_c):
                     dxq = a_sum * xs[i, q] - ax[q]
@@ -1125,9 +1121,9 @@ def simulate(
                 ls_has[i] = False  # after a restart the layer has no share to send
                 if not x_none[i]:
                     ls_has[i] = True
-                    ls_ver[i] = n_made[i]
+                    vs = n_made[i] % n_ver
+                    ls_ver[i] = vs
                     n_made[i] += 1
-                    vs = ls_ver[i] % n_ver
                     ls_t[i] = t
                     ls_l[i] = eig_lam[i]
                     ls_round[i] = rounds[i]
@@ -1231,9 +1227,10 @@ def simulate(
                     if not (loss > 0.0 and lost(loss_seed, k_sent, j, i, n, K_LOC, loss)):
                         loc_has[i, j] = True
                         loc_t[i, j] = t_sent
-                        loc_p[i, j] = o_loc_p[src, j]
                         loc_tgt[i, j] = o_loc_tgt[src, j, i]
-                        loc_grad[i, j] = o_loc_grad[src, j, i]
+                        for c in range(3):  # scalar copies: slices cost more at this size
+                            loc_p[i, j, c] = o_loc_p[src, j, c]
+                            loc_grad[i, j, c] = o_loc_grad[src, j, i, c]
                     if o_eig_has[src, j] and not (
                         loss > 0.0 and lost(loss_seed, k_sent, j, i, n, K_EIG, loss)
                     ):
