@@ -773,8 +773,9 @@ def simulate(
     ls_round = np.zeros(n, np.int64)
     ls_ver = np.zeros(n, np.int64)
     # every agent's shares by version (a receiver holds a version, not a copy): a version
-    # is overwritten ``n_ver`` versions later, when it is stale (one version per step at most)
-    n_ver = int(min(timeout / dt, n_steps + 1.0)) + delay + 4
+    # is overwritten ``n_ver`` versions later, when it is stale (one version per step at most);
+    # without loss a receiver holds one at most ``delay + 1`` versions old (fewer, hotter slots)
+    n_ver = int(min(timeout / dt, n_steps + 1.0)) + delay + 4 if loss > 0.0 else delay + 3
     n_made = np.zeros(n, np.int64)
     sh_state = np.zeros((n, n_ver, st_len))
     sh_tgt = np.zeros((n, n_ver, n), np.bool_)
