@@ -6,7 +6,8 @@ simulated seconds per wall (and per CPU) second, "x real time", and their ratio,
 same run. The compiled engine's time excludes numba's compile; the time of its first call in a
 fresh process (``--compile``: the cache is in a temporary directory, so this compiles) is
 reported on its own. The rigidity summary's evaluation (eigenvalues of the true configuration,
-outside both engines) is timed apart. Run as ``python benchmarks/bench_rigidity_compiled.py``.
+outside both engines) is timed apart. ``--loss`` and ``--latency`` set the link of both
+engines. Run as ``python benchmarks/bench_rigidity_compiled.py``.
 """
 
 from __future__ import annotations
@@ -51,6 +52,8 @@ def main() -> None:
     parser.add_argument("--scenario", default="rigidity-tracking")
     parser.add_argument("--compile", action="store_true", help="also time a cold compile")
     parser.add_argument("--quick", action="store_true", help="1 s cores, 6 s compiled")
+    parser.add_argument("--loss", type=float, default=0.0, help="message loss (both engines)")
+    parser.add_argument("--latency", type=float, default=0.0, help="message latency s (both)")
     args = parser.parse_args()
     if args.quick:
         args.cores_s, args.compiled_s = 1.0, 6.0
@@ -58,19 +61,22 @@ def main() -> None:
     from sim.rigidity_scenarios import run_rigidity_scenario
 
     name = args.scenario
+    link = {"loss": args.loss, "latency_s": args.latency}
     _, first_w, _ = timed(
         lambda: run_rigidity_scenario(name, 0, 0.01, engine="compiled")
     )  # load or compile
     comp, comp_w, comp_c = timed(
-        lambda: run_rigidity_scenario(name, 0, args.compiled_s, engine="compiled")
+        lambda: run_rigidity_scenario(name, 0, args.compiled_s, engine="compiled", **link)
     )
-    _, cores_w, cores_c = timed(lambda: run_rigidity_scenario(name, 0, args.cores_s))
+    _, cores_w, cores_c = timed(lambda: run_rigidity_scenario(name, 0, args.cores_s, **link))
     _, summ_w, _ = timed(comp.summary)
     rows = [
         ("cores", args.cores_s, cores_w, cores_c),
         ("compiled", args.compiled_s, comp_w, comp_c),
     ]
-    print(f"{name}, N = {comp.p_hat_ned.shape[1]}, dt = 2 ms")
+    print(
+        f"{name}, N = {comp.p_hat_ned.shape[1]}, dt = 2 ms, loss {args.loss}, latency {args.latency} s"
+    )
     print(
         f"{'engine':>10} {'sim s':>7} {'wall s':>8} {'cpu s':>8} {'x rt wall':>10} {'x rt cpu':>9}"
     )

@@ -8,8 +8,11 @@ rigidity layers. The cores remain the reference (and what the daemons fly); the 
 same seed to round-off (``tests/sim/test_rigidity_compiled.py`` bounds the difference).
 
 Supported: the three rigidity scenarios, any :class:`onboard.core.config.AgentConfig` gains,
-bearing noise (drawn from the runner's generator in the runner's order). Refused with a
-:class:`ValueError` naming the option (use engine ``cores``): message loss and latency, odometry
+bearing noise (drawn from the runner's generator in the runner's order), message loss (each copy
+of a payload dropped by :func:`sim.draws.lost` for the same ``(step, sender, receiver, kind)`` as
+the runner drops it) and latency (delivery ``1 + round(latency / dt)`` steps after publication,
+as the runner delivers). Refused with a
+:class:`ValueError` naming the option (use engine ``cores``): odometry
 noise and bias, camera latency, autopilot lags, the centralized eigen-estimate, a rigidity
 period, SfM distances, and graphs other than the complete one.
 
@@ -118,8 +121,6 @@ def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
         "yaw_gain": loc.yaw_gain != 0.2,
         "range/fov of the sensing model": math.isinf(cfg.rigidity.range_m)
         or cfg.rigidity.fov_deg >= 360.0,
-        "loss": runner.loss != 0.0,
-        "latency_s": runner.latency_s != 0.0,
         "camera_latency_s": runner.camera_latency_s != 0.0,
         "velocity_noise_m_s": runner.velocity_noise_m_s != 0.0,
         "yaw_rate_noise_rad_s": runner.yaw_rate_noise_rad_s != 0.0,
@@ -210,6 +211,9 @@ def run_compiled_rigidity_team(
         n_steps,
         frame_every,
         runner.record_every,
+        1 + round(runner.latency_s / dt),
+        runner.loss,
+        runner.seed,
     )
     edges = normalize_edges(cfg.graph.edges)
     rec = Recording.allocate(edges, reciprocal_pairs(edges), n, len(rp))

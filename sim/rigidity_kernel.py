@@ -15,10 +15,15 @@ and 3x3 symmetric eigenproblems are an LU and Jacobi rotations here, LAPACK ther
 call costs ten times the arithmetic of these sizes; the Ritz pairs do not depend on the basis
 the eigensolver returns, and the eigenvectors enter only through sign-free quadratic forms).
 
-**Messages** are per-sender values: the payloads a vehicle publishes at step ``k`` reach every
-other vehicle at step ``k + 1`` (the runner without latency), and each receiver keeps the newest
-of each kind, with its stamp, as the layer does. Without loss every receiver holds the same
-copy, so the inbox is one slot per sender and kind (``loc_*``, ``eig_*``).
+**Messages**: the payloads a vehicle publishes at step ``k`` go into a ring of ``delay`` slots
+(``o_*[slot, sender]``) and reach every other vehicle at step ``k + delay`` (``delay = 1 +
+round(latency / dt)``, as :func:`sim.runner.run` delivers), each copy lost when
+:func:`sim.draws.lost` says so for ``(k, sender, receiver, kind)`` (the runner's draw, so both
+engines lose the same copies). Each receiver keeps the newest of each kind per sender, with its
+stamp, as the layer does (``loc_*[receiver, sender]`` with only the receiver's own block of the
+per-target parts; ``eig_*[receiver, sender]`` with the slot of the version of the share it
+holds, whose content is ``sh_*[sender, slot]``, ``slot = version % n_ver``). While it waits for a round, a vehicle sends its
+last eigen share again (``ls_*``), as ``RigidityLayer.advance`` does.
 
 Layouts: ``V`` blocks ``(3, k)``; the consensus vector ``x`` ``(n_c,)`` of
 :func:`onboard.estimation.distributed_eigen.n_consensus`; an eigen share's ``per_target`` block
@@ -35,6 +40,12 @@ from numba import njit
 from onboard.control.rigidity import BARRIER_FLOOR
 from onboard.core.rigidity import BLEND_FLOOR, EIGEN_AGREEMENT, FRAME_MAX_AGE_S, ROUND_TIMEOUT_S
 from onboard.estimation.distributed_eigen import MAX_BLOCK_NORM2, N_TRIVIAL, RITZ_RCOND, TT_RCOND
+from sim import draws
+from sim.jit import compiled
+
+lost = compiled(draws).lost
+K_LOC = draws.KIND_ANGLE_LOCALIZATION
+K_EIG = draws.KIND_RIGIDITY_EIGEN
 
 # indices of the float parameters (:func:`sim.compiled_rigidity.parameters`)
 (
@@ -682,6 +693,9 @@ def simulate(
     n_steps,
     frame_every,
     record_every,
+    delay,
+    loss,
+    loss_seed,
 ):
     """Run the team for ``n_steps`` steps (module docstring). Arrays: ``p0`` ``(N, 3)``, ``yaw0``
     and ``offsets`` ``(N,)``, ``p_hat0`` the localization priors ``(N, 3)``, ``v0`` the eigen
@@ -740,29 +754,42 @@ def simulate(
     gy = np.zeros(n)
     agreed = np.zeros(n, np.bool_)
     nonfinite = 0
-    # inbox: the newest payload of each kind per sender (module docstring)
-    loc_has = np.zeros(n, np.bool_)
-    loc_t = np.zeros(n)
-    loc_p = np.zeros((n, 3))
+    # inbox [receiver, sender]: the newest payload of each kind, with the receiver's own
+    # block of its per-target parts (module docstring)
+    loc_has = np.zeros((n, n), np.bool_)
+    loc_t = np.zeros((n, n))
+    loc_p = np.zeros((n, n, 3))
     loc_tgt = np.zeros((n, n), np.bool_)
     loc_grad = np.zeros((n, n, 3))
-    eig_has = np.zeros(n, np.bool_)
-    eig_t = np.zeros(n)
-    eig_l = np.zeros(n)
-    eig_round = np.zeros(n, np.int64)
-    eig_state = np.zeros((n, st_len))
-    eig_tgt = np.zeros((n, n), np.bool_)
-    eig_per = np.zeros((n, n, per_len))
-    # what is published this step (delivered next step)
-    o_loc_p = np.zeros((n, 3))
-    o_loc_tgt = np.zeros((n, n), np.bool_)
-    o_loc_grad = np.zeros((n, n, 3))
-    o_eig_new = np.zeros(n, np.bool_)
-    o_eig_l = np.zeros(n)
-    o_eig_round = np.zeros(n, np.int64)
-    o_eig_state = np.zeros((n, st_len))
-    o_eig_tgt = np.zeros((n, n), np.bool_)
-    o_eig_per = np.zeros((n, n, per_len))
+    eig_has = np.zeros((n, n), np.bool_)
+    eig_t = np.zeros((n, n))
+    eig_l = np.zeros((n, n))
+    eig_round = np.zeros((n, n), np.int64)
+    eig_ver = np.zeros((n, n), np.int64)
+    # each agent's last eigen share (re-sent while it waits for a round)
+    ls_has = np.zeros(n, np.bool_)
+    ls_t = np.zeros(n)
+    ls_l = np.zeros(n)
+    ls_round = np.zeros(n, np.int64)
+    ls_ver = np.zeros(n, np.int64)
+    # every agent's shares by version (a receiver holds a version, not a copy): a version
+    # is overwritten ``n_ver`` versions later, when it is stale (one version per step at most);
+    # without loss a receiver holds one at most ``delay + 1`` versions old (fewer, hotter slots)
+    n_ver = int(min(timeout / dt, n_steps + 1.0)) + delay + 4 if loss > 0.0 else delay + 3
+    n_made = np.zeros(n, np.int64)
+    sh_state = np.zeros((n, n_ver, st_len))
+    sh_tgt = np.zeros((n, n_ver, n), np.bool_)
+    sh_per = np.zeros((n, n_ver, n, per_len))
+    # what is published [slot, sender]: a ring of the last ``delay`` steps' payloads
+    ring = delay
+    o_loc_p = np.zeros((ring, n, 3))
+    o_loc_tgt = np.zeros((ring, n, n), np.bool_)
+    o_loc_grad = np.zeros((ring, n, n, 3))
+    o_eig_has = np.zeros((ring, n), np.bool_)
+    o_eig_t = np.zeros((ring, n))
+    o_eig_l = np.zeros((ring, n))
+    o_eig_round = np.zeros((ring, n), np.int64)
+    o_eig_ver = np.zeros((ring, n), np.int64)
 
     ax = np.zeros(n_c)
     live_buf = np.empty(n, np.int64)
@@ -787,6 +814,7 @@ def simulate(
 
     for k in range(n_steps + 1):
         t = k * dt
+        slot = k % ring
         if k % frame_every == 0:
             fi = k // frame_every
             e = 0
@@ -848,7 +876,7 @@ def simulate(
             live = live_buf
             n_live = 0
             for j in range(n):
-                if j != i and loc_has[j] and t - loc_t[j] <= timeout:
+                if j != i and loc_has[i, j] and t - loc_t[i, j] <= timeout:
                     live[n_live] = j
                     n_live += 1
             live = live[:n_live]
@@ -873,7 +901,7 @@ def simulate(
             fresh = fresh_buf
             fresh.fill(False)
             for j in range(n):
-                if j != i and eig_has[j] and t - eig_t[j] <= timeout:
+                if j != i and eig_has[i, j] and t - eig_t[i, j] <= timeout:
                     fresh[j] = True
             cand = cand_buf
             n_cand = 0
@@ -890,9 +918,9 @@ def simulate(
                 c_ = 0.0
                 for q in range(n_seen):
                     j = seen[q]
-                    r0 = loc_p[j, 0] - p_hat[i, 0]
-                    r1 = loc_p[j, 1] - p_hat[i, 1]
-                    r2 = loc_p[j, 2] - p_hat[i, 2]
+                    r0 = loc_p[i, j, 0] - p_hat[i, 0]
+                    r1 = loc_p[i, j, 1] - p_hat[i, 1]
+                    r2 = loc_p[i, j, 2] - p_hat[i, 2]
                     nn = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
                     if nn == 0.0:
                         ok = False
@@ -913,7 +941,7 @@ def simulate(
             # one star over the candidates (elementwise: a sub-star is a restriction)
             p_cand = np.empty((n_cand, 3))
             for q in range(n_cand):
-                p_cand[q] = loc_p[cand[q]]
+                p_cand[q] = loc_p[i, cand[q]]
             _, d_c, b_c, cos_c, h_c, w_c, dhr_c, dhy_c = star(p_own, yaw_hat[i], p_cand, prm)
             pos = pos_buf
             pos.fill(-1)
@@ -935,30 +963,30 @@ def simulate(
             else:
                 p_seen = np.empty((n_seen, 3))
                 for q in range(n_seen):
-                    p_seen[q] = loc_p[seen[q]]
+                    p_seen[q] = loc_p[i, seen[q]]
                 _, d_s, b_s, cos_s, _, _, _, _ = star(p_own, yaw_hat[i], p_seen, prm)
             g_loc = angle_gradient(b_s, d_s, cos_s, beta, prm[P_K_ANGLE])
             g_loc += vertical_gradient(b_s, d_s, beta, prm[P_K_VERTICAL])
             grad = g_loc[0].copy()
             for j in live:
-                if loc_tgt[j, i]:
-                    grad += loc_grad[j, i]
+                if loc_tgt[i, j]:
+                    grad += loc_grad[i, j]
             for j in range(n):
                 if is_live[j] and frame_fresh and rng_d[i, j] > 0.0:
-                    r0 = p_own[0] - loc_p[j, 0]
-                    r1 = p_own[1] - loc_p[j, 1]
-                    r2 = p_own[2] - loc_p[j, 2]
+                    r0 = p_own[0] - loc_p[i, j, 0]
+                    r1 = p_own[1] - loc_p[i, j, 1]
+                    r2 = p_own[2] - loc_p[i, j, 2]
                     nn = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
                     if nn != 0.0:
                         ge = 2.0 * prm[P_K_DISTANCE] * (nn - rng_d[i, j])
                         grad[0] += ge * r0 / nn
                         grad[1] += ge * r1 / nn
                         grad[2] += ge * r2 / nn
-            o_loc_p[i] = p_own
-            o_loc_tgt[i] = False
+            o_loc_p[slot, i] = p_own
+            o_loc_tgt[slot, i] = False
             for q in range(n_seen):
-                o_loc_tgt[i, seen[q]] = True
-                o_loc_grad[i, seen[q]] = g_loc[q + 1]
+                o_loc_tgt[slot, i, seen[q]] = True
+                o_loc_grad[slot, i, seen[q]] = g_loc[q + 1]
             # AgentCore's dt: 0 at the first step, then t - t_previous (not exactly dt)
             dt_i = 0.0 if k == 0 else t - (k - 1) * dt
             vn0, vn1, vn2 = 0.0, 0.0, 0.0
@@ -976,11 +1004,10 @@ def simulate(
             take = True
             low = -1
             for j in cand:
-                if eig_round[j] < rounds[i]:
+                if eig_round[i, j] < rounds[i]:
                     take = t - round_t[i] >= ROUND_TIMEOUT_S
-                if low < 0 or eig_round[j] < low:
-                    low = eig_round[j]
-            o_eig_new[i] = False
+                if low < 0 or eig_round[i, j] < low:
+                    low = eig_round[i, j]
             if take:
                 rounds[i] = max(rounds[i], max(low, 0)) + 1
                 round_t[i] = t
@@ -989,18 +1016,18 @@ def simulate(
                     j = cand[q]
                     for c in range(3):
                         for col in range(kk):
-                            v_cand[q, c, col] = eig_state[j, 2 * n_c + c * kk + col]
+                            v_cand[q, c, col] = sh_state[j, eig_ver[i, j], 2 * n_c + c * kk + col]
                 v_i = vmat[i]
                 mv = weighted_matvec(b_c, d_c, cos_c, w_c, v_i, v_cand)
                 s_parts = weighted_degree(d_c, cos_c, w_c)
                 total = np.zeros(per_len)
                 got = False
                 for j in range(n):
-                    if fresh[j] and eig_tgt[j, i]:
+                    if fresh[j] and sh_tgt[j, eig_ver[i, j], i]:
                         if got:
-                            total += eig_per[j, i]
+                            total += sh_per[j, eig_ver[i, j], i]
                         else:
-                            total[:] = eig_per[j, i]
+                            total[:] = sh_per[j, eig_ver[i, j], i]
                             got = True
                 mv_i = mv[0].copy()
                 for c in range(3):
@@ -1042,12 +1069,12 @@ def simulate(
                 top = -np.inf
                 for j in range(n):
                     if fresh[j]:
-                        a_j = 1.0 / (1.0 + max(float(k_nb), eig_state[j, st_len - 2]))
+                        a_j = 1.0 / (1.0 + max(float(k_nb), sh_state[j, eig_ver[i, j], st_len - 2]))
                         a_sum += a_j
                         for q in range(n_c):
-                            ax[q] += a_j * eig_state[j, q]
-                            az[q] += a_j * eig_state[j, n_c + q]
-                        top = max(top, eig_state[j, st_len - 1])
+                            ax[q] += a_j * sh_state[j, eig_ver[i, j], q]
+                            az[q] += a_j * sh_state[j, eig_ver[i, j], n_c + q]
+                        top = max(top, sh_state[j, eig_ver[i, j], st_len - 1])
                 e_g, e_p, e_i = prm[P_E_G], prm[P_E_P], prm[P_E_I]
                 for q in range(n_c):
                     dxq = a_sum * xs[i, q] - ax[q]
@@ -1092,27 +1119,32 @@ def simulate(
                     v_new = restart_v[i, restarts[i] - 1].copy()
                     x_none[i] = True
                 vmat[i] = v_new
+                ls_has[i] = False  # after a restart the layer has no share to send
                 if not x_none[i]:
-                    o_eig_new[i] = True
-                    o_eig_l[i] = eig_lam[i]
-                    o_eig_round[i] = rounds[i]
-                    o_eig_state[i, :n_c] = xs[i]
-                    o_eig_state[i, n_c : 2 * n_c] = zs[i]
+                    ls_has[i] = True
+                    vs = n_made[i] % n_ver
+                    ls_ver[i] = vs
+                    n_made[i] += 1
+                    ls_t[i] = t
+                    ls_l[i] = eig_lam[i]
+                    ls_round[i] = rounds[i]
+                    sh_state[i, vs, :n_c] = xs[i]
+                    sh_state[i, vs, n_c : 2 * n_c] = zs[i]
                     for c in range(3):
                         for col in range(kk):
-                            o_eig_state[i, 2 * n_c + c * kk + col] = v_new[c, col]
-                    o_eig_state[i, st_len - 2] = float(degree[i])
-                    o_eig_state[i, st_len - 1] = s_bar[i]
-                    o_eig_tgt[i] = False
+                            sh_state[i, vs, 2 * n_c + c * kk + col] = v_new[c, col]
+                    sh_state[i, vs, st_len - 2] = float(degree[i])
+                    sh_state[i, vs, st_len - 1] = s_bar[i]
+                    sh_tgt[i, vs] = False
                     for q in range(n_cand):
                         j = cand[q]
-                        o_eig_tgt[i, j] = True
+                        sh_tgt[i, vs, j] = True
                         for c in range(3):
                             for col in range(kk):
-                                o_eig_per[i, j, c * kk + col] = mv[q + 1, c, col]
-                        o_eig_per[i, j, 3 * kk] = s_parts[q + 1]
+                                sh_per[i, vs, j, c * kk + col] = mv[q + 1, c, col]
+                        sh_per[i, vs, j, 3 * kk] = s_parts[q + 1]
                         for c in range(3):
-                            o_eig_per[i, j, 3 * kk + 1 + c] = g_form[q + 1, c]
+                            sh_per[i, vs, j, 3 * kk + 1 + c] = g_form[q + 1, c]
                 lam[i] = eig_lam[i]
                 for c in range(3):
                     gp[i, c] = (g_form[0, c] + total[3 * kk + 1 + c]) / n
@@ -1120,8 +1152,16 @@ def simulate(
             tol = EIGEN_AGREEMENT * prm[P_LAMBDA_SAFE]
             agreed[i] = n_cand > 0
             for j in cand:
-                if not abs(eig_l[j] - lam[i]) <= tol:
+                if not abs(eig_l[i, j] - lam[i]) <= tol:
                     agreed[i] = False
+
+            # publish: a new round's share, else the last one again (RigidityLayer.advance)
+            o_eig_has[slot, i] = ls_has[i]
+            if ls_has[i]:
+                o_eig_t[slot, i] = ls_t[i]
+                o_eig_l[slot, i] = ls_l[i]
+                o_eig_round[slot, i] = ls_round[i]
+                o_eig_ver[slot, i] = ls_ver[i]
 
             # 4. actions (RigidityLayer._actions)
             u = np.zeros(3)
@@ -1141,7 +1181,7 @@ def simulate(
                     if n_live > 0:
                         others = np.empty((n_live, 3))
                         for q in range(n_live):
-                            others[q] = loc_p[live[q]]
+                            others[q] = loc_p[i, live[q]]
                         gc = collision_gradient(p_own, others, prm)
                         if gc[0] != 0.0 or gc[1] != 0.0 or gc[2] != 0.0:
                             cy, sy = math.cos(yaw_hat[i]), math.sin(yaw_hat[i])
@@ -1175,21 +1215,31 @@ def simulate(
             u_cmd[i] = u
             w_cmd[i] = max(-prm[P_W_MAX], min(prm[P_W_MAX], w))
 
-        # delivery: this step's payloads are next step's inbox
-        for j in range(n):
-            loc_has[j] = True
-            loc_t[j] = t
-            loc_p[j] = o_loc_p[j]
-            loc_tgt[j] = o_loc_tgt[j]
-            loc_grad[j] = o_loc_grad[j]
-            if o_eig_new[j]:
-                eig_has[j] = True
-                eig_t[j] = t
-                eig_l[j] = o_eig_l[j]
-                eig_round[j] = o_eig_round[j]
-                eig_state[j] = o_eig_state[j]
-                eig_tgt[j] = o_eig_tgt[j]
-                eig_per[j] = o_eig_per[j]
+        # delivery: the payloads of step k + 1 - delay are next step's inbox, each copy lost
+        # as sim.draws.lost says for (step sent, sender, receiver, kind), as the runner drops it
+        k_sent = k + 1 - delay
+        if k_sent >= 0:
+            src = k_sent % ring
+            t_sent = k_sent * dt
+            for j in range(n):
+                for i in range(n):
+                    if i == j:
+                        continue
+                    if not (loss > 0.0 and lost(loss_seed, k_sent, j, i, n, K_LOC, loss)):
+                        loc_has[i, j] = True
+                        loc_t[i, j] = t_sent
+                        loc_tgt[i, j] = o_loc_tgt[src, j, i]
+                        for c in range(3):  # scalar copies: slices cost more at this size
+                            loc_p[i, j, c] = o_loc_p[src, j, c]
+                            loc_grad[i, j, c] = o_loc_grad[src, j, i, c]
+                    if o_eig_has[src, j] and not (
+                        loss > 0.0 and lost(loss_seed, k_sent, j, i, n, K_EIG, loss)
+                    ):
+                        eig_has[i, j] = True
+                        eig_t[i, j] = o_eig_t[src, j]
+                        eig_l[i, j] = o_eig_l[src, j]
+                        eig_round[i, j] = o_eig_round[src, j]
+                        eig_ver[i, j] = o_eig_ver[src, j]
         if k % record_every == 0:
             rec_p[r_idx] = p
             rec_yaw[r_idx] = yaw

@@ -70,8 +70,6 @@ def check_scenario(scenario: str, engine: str) -> None:
         raise ValueError(
             f"unknown scenario {scenario!r}; choose from {', '.join([*scale, *rigidity])}"
         )
-    if engine == "compiled" and scenario in rigidity:
-        raise ValueError("the compiled engine runs the scale-* scenarios only")
 
 
 def scenario_metrics(task: RunTask, progress=None) -> dict[str, object]:
@@ -81,10 +79,14 @@ def scenario_metrics(task: RunTask, progress=None) -> dict[str, object]:
     if task.scenario in rigidity:
         from sim.rigidity_scenarios import run_rigidity_scenario
 
-        if task.engine != "cores":
-            raise ValueError("the compiled engine runs the scale-* scenarios only")
         summary = run_rigidity_scenario(
-            task.scenario, task.run_seed, task.duration_s, progress, agent, **runner
+            task.scenario,
+            task.run_seed,
+            task.duration_s,
+            progress,
+            agent,
+            engine=task.engine,
+            **runner,
         ).summary()
     else:
         from sim.runner import summarize

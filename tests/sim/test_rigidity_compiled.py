@@ -6,7 +6,8 @@ numpy calls BLAS (another summation order, fused multiply-adds), and solves the 
 (a 7x7 system, two 3x3 symmetric eigenproblems) with an LU and Jacobi rotations where the layer
 calls LAPACK, so the last bits of many intermediates differ. Over the short runs here
 (localization, eigen-estimate and every action, the warm-up shortened so the team moves) the
-differences stay at round-off, bounded below at ``1e-9``.
+differences stay at round-off, bounded below at ``1e-9``, with message loss and latency too
+(both engines draw each copy's loss from :func:`sim.draws.lost`).
 """
 
 from __future__ import annotations
@@ -31,10 +32,21 @@ OVERRIDES = {"rigidity_warmup_s": 0.3}
 TOL = 1e-9
 
 
-@pytest.fixture(scope="module", params=sorted(RIGIDITY_SCENARIOS))
+LINKS = [{}, {"loss": 0.1}, {"loss": 0.3}]
+"""Message loss: both engines drop the copies :func:`sim.draws.lost` names."""
+CASES = [(name, link) for link in LINKS for name in sorted(RIGIDITY_SCENARIOS)]
+CASES.append(("rigidity-tracking", {"loss": 0.2, "latency_s": 0.03}))
+
+
+def _case_id(case) -> str:
+    name, link = case
+    return "-".join([name, *(f"{k}={v}" for k, v in link.items())])
+
+
+@pytest.fixture(scope="module", params=CASES, ids=_case_id)
 def pair(request: pytest.FixtureRequest):
-    name = request.param
-    kw = {"seed": 1, "duration_s": DURATION_S, "config_overrides": OVERRIDES}
+    name, link = request.param
+    kw = {"seed": 1, "duration_s": DURATION_S, "config_overrides": OVERRIDES, **link}
     return run_rigidity_scenario(name, **kw), run_compiled_rigidity(name, **kw)
 
 
@@ -82,7 +94,8 @@ def test_cli_prints_the_same_keys_with_either_engine() -> None:
 
 
 @pytest.mark.parametrize(
-    ("option", "value"), [("loss", 0.1), ("latency_s", 0.01), ("velocity_noise_m_s", 0.1)]
+    ("option", "value"),
+    [("camera_latency_s", 0.01), ("tau_v_s", 0.1), ("velocity_noise_m_s", 0.1)],
 )
 def test_what_the_kernel_does_not_model_is_refused_by_name(option: str, value: float) -> None:
     with pytest.raises(ValueError, match=option):
@@ -97,6 +110,21 @@ def test_cli_refuses_loss_on_the_compiled_rigidity_engine() -> None:
     args = ["rigidity-tracking", "--duration", "0.1", "--engine", "compiled", "--loss", "0.1"]
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2 and "without loss" in res.output
+
+
+@pytest.mark.parametrize("name", sorted(RIGIDITY_SCENARIOS))
+@pytest.mark.parametrize("link", [{"loss": 0.1}, {"loss": 0.3}, {"latency_s": 0.03}])
+def test_loss_and_latency_change_the_run(name: str, link: dict) -> None:
+    """The agreement above with loss or latency is not that of two unchanged runs."""
+    kw = {"seed": 1, "duration_s": DURATION_S, "config_overrides": OVERRIDES}
+    quiet = run_compiled_rigidity(name, **kw)
+    lossy = run_compiled_rigidity(name, **kw, **link)
+    changed = max(
+        np.abs(lossy.rec.p_ned - quiet.rec.p_ned).max(),
+        np.abs(lossy.p_hat_ned - quiet.p_hat_ned).max(),
+        np.abs(lossy.lambda_hat - quiet.lambda_hat).max(),
+    )
+    assert changed > 1e-6
 
 
 def test_bearing_noise_is_drawn_as_the_runner_draws_it() -> None:

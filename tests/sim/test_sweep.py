@@ -102,7 +102,6 @@ def test_values_take_their_field_type_so_equal_values_are_one_grid_point() -> No
         (["bearing_noise_deg=-1"], "cores", "scale-active", ">= 0"),
         (["rigidity_eigen=3"], "cores", "scale-active", "rigidity_eigen"),
         (["loss"], "cores", "scale-active", "NAME=V1"),
-        ([], "compiled", "rigidity-tracking", "compiled engine"),
         ([], "warp", "scale-active", "unknown engine"),
         ([], "cores", "scale-nothing", "unknown scenario"),
     ],
@@ -341,6 +340,21 @@ def test_rigidity_rows_are_the_scenario_json_and_agent_gains_reach_the_agents(
     # the centralized eigenpair is another estimate of the same true trajectory's eigenvalue
     assert central["distributed_eigen_error_p95"] != dist["distributed_eigen_error_p95"]
     assert central["params"] == '{"rigidity_eigen": "centralized"}'
+
+
+def test_compiled_rigidity_rows_are_the_compiled_scenario_json(tmp_path: Path) -> None:
+    """A ``rigidity-tracking --engine compiled`` row is ``bearingflock scenario rigidity-tracking
+    --engine compiled --json`` (issue 21)."""
+    spec = from_cli("rigidity-tracking", "1", [], "compiled", 0.2)
+    _, (row,) = run(spec, tmp_path / "r")
+    assert row["status"] == "ok", row["error"]
+    args = ["scenario", "rigidity-tracking", "--seed", "1", "--duration", "0.2", "--json"]
+    res = CliRunner().invoke(app, [*args, "--engine", "compiled"])
+    assert res.exit_code == 0, res.output
+    ref = json.loads(res.stdout.strip().splitlines()[-1])
+    metrics = json.loads(row["metrics"])
+    assert set(metrics) == set(ref) - {"scenario", "seed", "duration_s", "engine"}
+    assert {m: row[m] for m in metrics} == {m: ref[m] for m in metrics}
 
 
 def test_a_sweep_file_with_duration_on_the_command_line_and_no_dask_import(
