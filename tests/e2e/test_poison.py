@@ -10,6 +10,7 @@ ahead (every later frame ignored). Now they are counted and dropped, the clock j
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import msgspec
@@ -44,7 +45,26 @@ def test_one_packet_of_poison_each_leaves_the_team_flying(fleet, wait_for):
     wait_for(all_flying, 60.0, "every daemon flying", ev)
     time.sleep(2.0)
     t = max(s.stamp_s for s in ev.snapshot().values())  # the team's (simulation) time
-    SEQ.update({k: s.agent.seq + 50 for k, s in ev.snapshot().items()})  # 0.5 s ahead
+    # 0.5 s ahead of each sender's newest peer payload: a status (2 Hz, late on a loaded
+    # machine) can be older than that, and a poison numbered behind the sender's own payloads is
+    # dropped as a replay (seq_replay) before it reaches the receivers' checks
+    newest = {k: s.agent.seq for k, s in ev.snapshot().items()}
+    lock = threading.Lock()
+
+    def on_peer(sample) -> None:
+        try:
+            raw = msgspec.msgpack.decode(sample.payload.to_bytes())
+            k, q = int(raw["sender"]), int(raw["seq"])
+        except Exception:
+            return
+        with lock:
+            newest[k] = max(newest.get(k, 0), q)
+
+    sub = ev.session.declare_subscriber(f"bf/{name}/*/peer/*", on_peer)
+    time.sleep(0.5)
+    sub.undeclare()
+    with lock:
+        SEQ.update({k: q + 50 for k, q in newest.items()})
     motion = {"yaw_rate_rad_s": 0.0, "yaw_rad": 0.0}
     poison = [
         (f"bf/{name}/1/peer/motion", _raw("peer.motion", 1, t, v_body=[1e300, 0.0, 0.0], **motion)),

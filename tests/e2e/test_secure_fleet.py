@@ -139,19 +139,28 @@ def _flying(ev) -> bool:
     )
 
 
+def _vehicle_ports(tmp_path) -> list[int]:
+    """The UDP ports the simulator bound for its vehicles, from its start-up lines
+    (``vehicle I sysid S: udp 127.0.0.1:PORT -> ...``; the fleet fixture lets the kernel
+    choose them, ``--bind-base 0``)."""
+    text = (tmp_path / "sim.log").read_text()
+    return [int(p) for p in re.findall(r"^vehicle \d+ sysid \d+: udp [\d.]+:(\d+)", text, re.M)]
+
+
 def test_secured_team_flies_and_ignores_unsigned_and_forged_mavlink(tmp_path, fleet_with, wait_for):
     init_fleet(tmp_path / "keys", "alpha", N)
     with fleet_with(tmp_path, keys=tmp_path / "keys") as fleet:
         ev, _procs, ports, _agent_args, name = fleet
         took = wait_for(lambda: _flying(ev), 90.0, "every daemon flying over signed links", ev)
         rogues, rogue_got = _rogue_sessions(tmp_path, name, ports.zenoh)
-        bind = ports.mavlink + N + 5  # the simulator's vehicle sockets (conftest)
+        bind = _vehicle_ports(tmp_path)  # the simulator's vehicle sockets (kernel-chosen)
+        assert len(bind) == N
         sent = 0
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             for _ in range(ROUNDS):
                 for i in range(N):
                     for frame in _attack_frames(i + 1):
-                        s.sendto(frame, ("127.0.0.1", bind + i))
+                        s.sendto(frame, ("127.0.0.1", bind[i]))
                         sent += 1
                 time.sleep(0.1)
             t_end = time.monotonic() + 5.0
