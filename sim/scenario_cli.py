@@ -35,7 +35,7 @@ def scenario(
         typer.Option(
             help="'cores' steps one agent core per vehicle (the reference), "
             "'compiled' the same team compiled with numba (scale-*: ~250x real time; "
-            "rigidity-*: ~25x, no loss or latency; the first run compiles it, 1-3 min)"
+            "rigidity-*: ~25x; the first run compiles it, 1-3 min)"
         ),
     ] = "cores",
 ) -> None:
@@ -72,8 +72,6 @@ def scenario(
         raise typer.BadParameter("loss must be in [0, 1)")
     if engine not in ("cores", "compiled"):
         raise typer.BadParameter(f"unknown engine {engine!r}; choose 'cores' or 'compiled'")
-    if engine == "compiled" and name in RIGIDITY_SCENARIOS and (loss > 0.0 or latency > 0.0):
-        raise typer.BadParameter("the compiled engine runs rigidity-* without loss or latency")
     console = Console(stderr=True)
     if name in SE3_SCENARIOS:
         _run_se3(name, seed, duration, bearing_noise_deg, loss, latency, plot, json, console)

@@ -52,7 +52,6 @@ def test_negative_seed_is_a_usage_error():
         (["scale-active", "--loss", "1"], "loss"),
         (["no-such-scenario"], "unknown scenario"),
         (["scale-active", "--engine", "gpu"], "unknown engine"),
-        (["rigidity-tracking", "--engine", "compiled", "--loss", "0.1"], "without loss"),
     ],
 )
 def test_scenario_bad_options_exit_2(args: list[str], message: str) -> None:

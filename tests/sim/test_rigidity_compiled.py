@@ -102,16 +102,6 @@ def test_what_the_kernel_does_not_model_is_refused_by_name(option: str, value: f
         run_compiled_rigidity("rigidity-tracking", duration_s=0.01, **{option: value})
 
 
-def test_cli_refuses_loss_on_the_compiled_rigidity_engine() -> None:
-    from sim.scenario_cli import scenario
-
-    app = typer.Typer()
-    app.command()(scenario)
-    args = ["rigidity-tracking", "--duration", "0.1", "--engine", "compiled", "--loss", "0.1"]
-    res = CliRunner().invoke(app, args)
-    assert res.exit_code == 2 and "without loss" in res.output
-
-
 @pytest.mark.parametrize("name", sorted(RIGIDITY_SCENARIOS))
 @pytest.mark.parametrize("link", [{"loss": 0.1}, {"loss": 0.3}, {"latency_s": 0.03}])
 def test_loss_and_latency_change_the_run(name: str, link: dict) -> None:
