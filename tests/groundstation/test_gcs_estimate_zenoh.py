@@ -63,7 +63,12 @@ def test_live_estimator_feeds_the_loop_from_zenoh_and_counts_bad_samples():
             pub_session.put("bf/alpha/1/peer/motion", b"\xc1 not msgpack")
             est.pump(0.1)
         pub_session.put(peer_key("beta", 1, "motion"), b"other fleet: not subscribed")
-        _feed(_Publisher(pub_session, "alpha"), 0.0, 1.0)
+        # paced as a team publishes (each key has its own subscription, so a burst can arrive
+        # frames first: the loop admits a vehicle only on a frame after its odometry)
+        publisher = _Publisher(pub_session, "alpha")
+        for k in range(10):
+            _feed(publisher, 0.1 * k, 0.1 * (k + 1))
+            time.sleep(0.02)
         good = 20 * 3 + 5 * 3 * 2
         deadline = time.monotonic() + 10.0
         while (
