@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Collection, Iterable
+from collections.abc import Callable, Collection, Iterable
 from functools import lru_cache
 from typing import Any, TypeVar
 
@@ -201,7 +201,7 @@ def _unbounded_fields(kind: type[msgspec.Struct]) -> tuple[str, ...]:
     (``tests/messages/test_codec.py`` pins this). Most payloads have none: no Python walk."""
     info = msgspec.inspect.type_info(kind)
     assert isinstance(info, msgspec.inspect.StructType)
-    return tuple(f.name for f in info.fields if not _finite_by_msgspec(f.type, set()))
+    return tuple(f.name for f in info.fields if not _every_leaf(f.type, _bounded_by_msgspec, set()))
 
 
 @lru_cache(maxsize=256)
@@ -213,35 +213,46 @@ def _encode_plan(kind: type[msgspec.Struct]) -> tuple[tuple[str, ...], bool]:
     assert isinstance(info, msgspec.inspect.StructType)
     arrays = _array_fields(kind)
     seen: set[int] = {id(info)}
-    walk = not all(f.name in arrays or _floats_on_the_wire(f.type, seen) for f in info.fields)
+    walk = not all(
+        f.name in arrays or _every_leaf(f.type, _encoded_as_float, seen) for f in info.fields
+    )
     return arrays, walk
 
 
-def _floats_on_the_wire(t: msgspec.inspect.Type, seen: set[int]) -> bool:
-    """Whether every float inside a value of type ``t`` is encoded as a MessagePack float."""
+def _every_leaf(
+    t: msgspec.inspect.Type, leaf: Callable[[msgspec.inspect.Type], bool], seen: set[int]
+) -> bool:
+    """Whether ``leaf`` holds for every non-container type inside ``t`` (lists, tuples, sets,
+    dicts, unions and structs are walked; a recursive struct is judged where first met)."""
     mi = msgspec.inspect
-    if isinstance(t, (mi.FloatType, mi.IntType, mi.BoolType, mi.StrType, mi.NoneType,
-                      mi.BytesType, mi.ByteArrayType, mi.LiteralType, mi.EnumType)):  # fmt: skip
-        return True
     if isinstance(t, (mi.ListType, mi.VarTupleType, mi.SetType, mi.FrozenSetType)):
-        return _floats_on_the_wire(t.item_type, seen)
+        return _every_leaf(t.item_type, leaf, seen)
     if isinstance(t, mi.TupleType):
-        return all(_floats_on_the_wire(x, seen) for x in t.item_types)
+        return all(_every_leaf(x, leaf, seen) for x in t.item_types)
     if isinstance(t, mi.DictType):
-        return _floats_on_the_wire(t.key_type, seen) and _floats_on_the_wire(t.value_type, seen)
+        return _every_leaf(t.key_type, leaf, seen) and _every_leaf(t.value_type, leaf, seen)
     if isinstance(t, mi.UnionType):
-        return all(_floats_on_the_wire(x, seen) for x in t.types)
+        return all(_every_leaf(x, leaf, seen) for x in t.types)
     if isinstance(t, mi.StructType):
         if id(t) in seen:
             return True
         seen.add(id(t))
-        return all(_floats_on_the_wire(f.type, seen) for f in t.fields)
-    return False  # arrays below the top level, Any, dataclasses, ...
+        return all(_every_leaf(f.type, leaf, seen) for f in t.fields)
+    return leaf(t)
 
 
-def _finite_by_msgspec(t: msgspec.inspect.Type, seen: set[int]) -> bool:
-    """Whether msgspec itself rejects every non-finite float inside a value of type ``t``
-    (float64 array fields count as checked: :func:`_check_arrays` does them)."""
+def _encoded_as_float(t: msgspec.inspect.Type) -> bool:
+    """A leaf whose floats are MessagePack floats (arrays below the top level, Any,
+    dataclasses, ... are not)."""
+    mi = msgspec.inspect
+    return isinstance(t, (mi.FloatType, mi.IntType, mi.BoolType, mi.StrType, mi.NoneType,
+                          mi.BytesType, mi.ByteArrayType, mi.LiteralType, mi.EnumType))  # fmt: skip
+
+
+def _bounded_by_msgspec(t: msgspec.inspect.Type) -> bool:
+    """A leaf in which msgspec itself rejects every non-finite float: a float with finite bounds
+    on both sides, a type without floats, or a float64 array (:func:`_check_arrays` does
+    those); Any, dataclasses, ... are walked in Python."""
     mi = msgspec.inspect
     if isinstance(t, mi.FloatType):
         lo = t.ge if t.ge is not None else t.gt
@@ -250,22 +261,9 @@ def _finite_by_msgspec(t: msgspec.inspect.Type, seen: set[int]) -> bool:
     if isinstance(t, (mi.IntType, mi.BoolType, mi.StrType, mi.NoneType, mi.BytesType,
                       mi.ByteArrayType, mi.MemoryViewType, mi.LiteralType, mi.EnumType)):  # fmt: skip
         return True
-    if isinstance(t, (mi.ListType, mi.VarTupleType, mi.SetType, mi.FrozenSetType)):
-        return _finite_by_msgspec(t.item_type, seen)
-    if isinstance(t, mi.TupleType):
-        return all(_finite_by_msgspec(x, seen) for x in t.item_types)
-    if isinstance(t, mi.DictType):
-        return _finite_by_msgspec(t.key_type, seen) and _finite_by_msgspec(t.value_type, seen)
-    if isinstance(t, mi.UnionType):
-        return all(_finite_by_msgspec(x, seen) for x in t.types)
-    if isinstance(t, mi.StructType):
-        if id(t) in seen:  # a recursive struct: its floats are judged where first met
-            return True
-        seen.add(id(t))
-        return all(_finite_by_msgspec(f.type, seen) for f in t.fields)
     if isinstance(t, mi.CustomType):
         return getattr(t.cls, "__origin__", t.cls) is np.ndarray
-    return False  # Any, dataclasses, ...: walked in Python
+    return False
 
 
 @lru_cache(maxsize=256)
