@@ -4,7 +4,8 @@ others, localizing by bearings to them, are as certain as possible at their setp
 Modules: ``problem`` (data, validation, numpy evaluation), ``symbolic`` (casadi expressions),
 ``hessian`` (the structured exact Hessian of eq. 11), ``ipopt`` (Problem 3, the main method),
 ``greedy`` and ``isres`` (baselines), ``setpoints`` (TOML files), ``plot`` (figure),
-``validation`` (EKF along a mission: planned vs random landmarks). Solvers import casadi /
+``validation`` (EKF along a mission: planned vs random landmarks), ``team`` (paper 004
+Fig. 9: a team of missions planned for together). Solvers import casadi /
 nlopt / matplotlib lazily.
 """
 
