@@ -92,6 +92,9 @@ class PeerLink:
         self._handles: list[Any] = []
         self._publishers: dict[str, Any] = {}
         self._ack_seq = 0
+        # the codec as attributes, so the CPU profile (onboard/daemon/profile) can time them
+        self.decode = decode
+        self.encode = encode
         self._token = self.session.liveliness().declare_token(alive_key(fleet, agent_id))
         for j in sorted(self.listen_to if listen_to is not None else self.known - {agent_id}):
             self._handles.append(
@@ -132,7 +135,7 @@ class PeerLink:
         if key_id == self.id:
             return  # our own publication, echoed back by the session
         try:
-            msg = decode(sample.payload.to_bytes(), PeerPayload, known_senders=self.known)
+            msg = self.decode(sample.payload.to_bytes(), PeerPayload, known_senders=self.known)
         except MessageError as exc:
             self.drops.drop(exc.reason, f"{sample.key_expr}: {exc.detail}")
             return
@@ -197,7 +200,7 @@ class PeerLink:
         for tag, p in latest.items():
             kind = tag.removeprefix("peer.")
             try:
-                data = encode(p)
+                data = self.encode(p)
             except MessageError as exc:  # never send a non-finite estimate to the fleet
                 self.drops.drop(exc.reason, f"{tag}: {exc.detail}", DropScope.OWN)
                 continue
