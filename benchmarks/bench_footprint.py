@@ -21,7 +21,9 @@ main``) in the same invocation, first, with the same script (this file run with 
 checkout first on ``PYTHONPATH``), and prints both rows side by side.
 
 Usage: ``python benchmarks/bench_footprint.py [--vehicles 6] [--duration 30] [--speedup 0.5]
-[--before PATH]``.
+[--before PATH] [--profile]``. ``--profile`` has each daemon split its CPU
+(``bearingflock agent --profile``, onboard/daemon/profile.py: core, rigidity, codec, zenoh,
+mavlink, loop, other); the split is of the whole run, scaled to the CPU per simulated second.
 """
 
 from __future__ import annotations
@@ -94,6 +96,7 @@ def measure(vehicles: int, duration_s: float, speedup: float, seed: int) -> dict
             record=False,
         )  # fmt: skip
         logged = _agent_metrics(Path(tmp), vehicles)
+        splits = _agent_lines(Path(tmp), vehicles, "cpu_split ")
     if marks["start"] is None or marks["end"] is None:
         raise RuntimeError("no daemon samples: the mission did not run past the warm-up")
     (t0, c0), (t1, c1) = marks["start"], marks["end"]
@@ -108,6 +111,9 @@ def measure(vehicles: int, duration_s: float, speedup: float, seed: int) -> dict
         # bearing -> setpoint on the wire (wall ms, as the daemons log it, onboard/daemon/metrics)
         "latency_p50_ms": _pooled(logged, "p50_ms", np.median),
         "latency_p99_ms": _pooled(logged, "p99_ms", np.max),
+        # where a daemon's CPU goes (onboard/daemon/profile.py; --profile), mean fractions
+        "split": _mean_split(splits),
+        "late_p99_ms": _late_p99(logged),
         "scale_error": summary.get("final_scale_error"),
         "landed": summary.get("landed"),
     }
@@ -115,12 +121,32 @@ def measure(vehicles: int, duration_s: float, speedup: float, seed: int) -> dict
 
 def _agent_metrics(out: Path, n: int) -> list[dict[str, Any]]:
     """The ``metrics {...}`` line each daemon logs on exit (as benchmarks/bench_daemon.py)."""
+    return _agent_lines(out, n, "metrics ")
+
+
+def _agent_lines(out: Path, n: int, prefix: str) -> list[dict[str, Any]]:
+    """The last JSON line ``PREFIX{...}`` of each daemon's log."""
     found = []
     for i in range(n):
-        lines = [x for x in (out / f"agent{i}.log").read_text().splitlines() if "metrics {" in x]
+        text = (out / f"agent{i}.log").read_text().splitlines()
+        lines = [x for x in text if prefix + "{" in x]
         if lines:
-            found.append(json.loads(lines[-1].split("metrics ", 1)[1]))
+            found.append(json.loads(lines[-1].split(prefix, 1)[1]))
     return found
+
+
+def _mean_split(splits: list[dict[str, Any]]) -> dict[str, float] | None:
+    """Mean over the daemons of each category's fraction of the process CPU."""
+    if not splits:
+        return None
+    return {k: float(np.mean([s["fraction"][k] for s in splits])) for k in splits[0]["fraction"]}
+
+
+def _late_p99(metrics: list[dict[str, Any]]) -> float | None:
+    """Worst daemon's p99 of how late its core ticks started (wall ms)."""
+    values = [m["tick_late"].get("p99_ms") for m in metrics]
+    values = [v for v in values if v is not None]
+    return float(np.max(values)) if values else None
 
 
 def _pooled(metrics: list[dict[str, Any]], key: str, pool: Any) -> float | None:
@@ -185,6 +211,8 @@ def measure_decode(repeat: int = 20_000) -> dict[str, Any]:
 def _measure_checkout(path: Path, args: argparse.Namespace) -> dict[str, Any]:
     """Run this script's ``--json`` measurement with ``path`` first on the import path."""
     env = dict(os.environ, PYTHONPATH=str(path))
+    if args.profile:
+        env["BEARINGFLOCK_AGENT_PROFILE"] = "1"  # onboard/daemon/profile.py
     cmd = [sys.executable, str(HERE), "--json", *(["--decode"] if args.decode else []),
            "--vehicles", str(args.vehicles),
            "--duration", str(args.duration), "--speedup", str(args.speedup),
@@ -225,6 +253,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--before", type=Path, help="another checkout to measure first")
     parser.add_argument("--decode", action="store_true", help="time the peer decode instead")
+    parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="daemons split their CPU (core, rigidity, codec, zenoh, ...)",
+    )
     parser.add_argument("--json", action="store_true", help="one JSON line (used by --before)")
     args = parser.parse_args()
     if args.json:
@@ -244,9 +277,15 @@ def main() -> None:
         rows.append(("before", _measure_checkout(args.before.resolve(), args)))
     rows.append(("this", _measure_checkout(HERE.parent.parent, args)))
     print(f"{'checkout':<10} {'cpu s/s':>9} {'max':>7} {'RSS MB':>8} {'max':>7} {'sim s':>6} "
-          f"{'b->wire ms':>13} {'scale err':>9} {'landed':>6}")  # fmt: skip
+          f"{'b->wire ms':>13} {'scale err':>9} {'landed':>6} {'late p99':>8}")  # fmt: skip
     for name, m in rows:
-        print(_row(name, m))
+        late = m.get("late_p99_ms")
+        print(_row(name, m) + f" {'-' if late is None else f'{late:.1f}':>8}")
+    for name, m in rows:
+        if m.get("split"):
+            cpu = m["cpu_s_per_sim_s"]
+            print(f"{name}: CPU split (core per sim s): "
+                  + ", ".join(f"{k} {cpu * v:.3f}" for k, v in m["split"].items()))  # fmt: skip
     if len(rows) == 2:
         b, a = rows[0][1], rows[1][1]
         print(f"ratio this/before: CPU {a['cpu_s_per_sim_s'] / b['cpu_s_per_sim_s']:.2f}, "

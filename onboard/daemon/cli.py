@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import signal
@@ -67,6 +68,14 @@ def agent(
             "a vehicle whose clock disagrees with the team's (its peers hold; never in flight)."
         ),
     ] = 0.0,
+    profile: Annotated[
+        bool,
+        typer.Option(
+            "--profile",
+            help="Log on exit where the daemon's CPU went: core, rigidity, codec, Zenoh, "
+            "MAVLink, loop (onboard/daemon/profile.py; also BEARINGFLOCK_AGENT_PROFILE=1).",
+        ),
+    ] = False,
 ) -> None:
     """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
     from messages.fatal import FatalThreads
@@ -79,7 +88,7 @@ def agent(
     try:
         _run_agent(
             stop, agent_id, config, mavlink, backend, json_status, log_level, bearings, camera,
-            markers, camera_device, system_id, clock_offset,
+            markers, camera_device, system_id, clock_offset, profile,
         )  # fmt: skip
     finally:
         fatal.uninstall()
@@ -102,6 +111,7 @@ def _run_agent(
     camera_device: str | None,
     system_id: int | None,
     clock_offset: float,
+    profile: bool = False,
 ) -> None:
     """The body of :func:`agent`; ``stop`` is set by the fatal-thread hook (and the signals)."""
     import msgspec
@@ -111,6 +121,7 @@ def _run_agent(
     from messages.transport import TransportError
     from onboard.autopilot import open_link
     from onboard.autopilot.base import LinkConfig
+    from onboard.daemon import profile as cpu_profile
     from onboard.daemon.bearings import SimCameraSource
     from onboard.daemon.clock import OffsetClock, SimClockFollower, WallClock, sim_clock_handler
     from onboard.daemon.config import ConfigError, load_fleet
@@ -244,12 +255,18 @@ def _run_agent(
         source = SimCameraSource(peers, drops, clock.now)
     daemon = AgentDaemon(fleet, agent_id, link, peers, source, clock, drops, url, on_status)
     daemon.stop_event = stop  # set already if a thread died while the daemon was being built
+    split = None
+    if cpu_profile.enabled(profile):
+        split = cpu_profile.CpuSplit()
+        cpu_profile.instrument(split, daemon.core, peers)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: daemon.stop_event.set())
     try:
         if not stop.is_set():  # a thread died during startup: nothing to fly, clean up
             daemon.run()
     finally:
+        if split is not None:
+            logging.getLogger(__name__).info("cpu_split %s", json.dumps(split.split()))
         if capture is not None:
             capture.close()
         if camera_source is not None:

@@ -92,15 +92,23 @@ class PeerLink:
         self._handles: list[Any] = []
         self._publishers: dict[str, Any] = {}
         self._ack_seq = 0
+        # the codec as attributes, so the CPU profile (onboard/daemon/profile) can time them
+        self.decode = decode
+        self.encode = encode
         self._token = self.session.liveliness().declare_token(alive_key(fleet, agent_id))
-        for j in sorted(self.listen_to if listen_to is not None else self.known - {agent_id}):
+        # one subscription per sender, whose handler knows the sender: no key parsing per
+        # sample (the key's agent id is the subscription's), and never our own echo
+        peers = self.listen_to if listen_to is not None else self.known
+        for j in sorted(peers - {agent_id}):
             self._handles.append(
-                self.session.declare_subscriber(key(fleet, j, PEER_TOPIC) + "/**", self._on_peer)
+                self.session.declare_subscriber(key(fleet, j, PEER_TOPIC) + "/**", self._on_peer(j))
             )
         for j, kind in sorted(set(listen_kinds)):
+            if j == agent_id:
+                continue
             self._handles.append(
                 self.session.declare_subscriber(
-                    key(fleet, j, f"{PEER_TOPIC}/{kind}"), self._on_peer
+                    key(fleet, j, f"{PEER_TOPIC}/{kind}"), self._on_peer(j)
                 )
             )
         self._handles.append(
@@ -117,30 +125,30 @@ class PeerLink:
         """Extra subscription on this session (bearing sources, the simulator's clock)."""
         self._handles.append(self.session.declare_subscriber(key_expr, handler))
 
-    def _on_peer(self, sample: Any) -> None:
-        if self.inject_loss > 0.0:
-            with self._lock:
-                lost = self._loss_rng.random() < self.inject_loss
-            if lost:
-                self.drops.drop(DropReason.INJECTED_LOSS, "fault injection (zenoh.inject_loss)")
+    def _on_peer(self, key_id: int) -> Callable[[Any], None]:
+        """The handler of the peer payloads on agent ``key_id``'s keys."""
+
+        def on_sample(sample: Any) -> None:
+            if self.inject_loss > 0.0:
+                with self._lock:
+                    lost = self._loss_rng.random() < self.inject_loss
+                if lost:
+                    self.drops.drop(DropReason.INJECTED_LOSS, "fault injection (zenoh.inject_loss)")
+                    return
+            try:
+                msg = self.decode(sample.payload.to_bytes(), PeerPayload, known_senders=self.known)
+            except MessageError as exc:
+                self.drops.drop(exc.reason, f"{sample.key_expr}: {exc.detail}")
                 return
-        try:
-            _, key_id, _ = parse_key(str(sample.key_expr))
-        except ValueError as exc:
-            self.drops.drop(DropReason.BAD_KEY, str(exc))
-            return
-        if key_id == self.id:
-            return  # our own publication, echoed back by the session
-        try:
-            msg = decode(sample.payload.to_bytes(), PeerPayload, known_senders=self.known)
-        except MessageError as exc:
-            self.drops.drop(exc.reason, f"{sample.key_expr}: {exc.detail}")
-            return
-        if msg.sender != key_id:
-            self.drops.drop(DropReason.SENDER_MISMATCH, f"{sample.key_expr}: sender {msg.sender}")
-            return
-        with self._lock:
-            self._inbox.append(msg)
+            if msg.sender != key_id:
+                self.drops.drop(
+                    DropReason.SENDER_MISMATCH, f"{sample.key_expr}: sender {msg.sender}"
+                )
+                return
+            with self._lock:
+                self._inbox.append(msg)
+
+        return on_sample
 
     def _on_command(self, sample: Any) -> None:
         try:
@@ -197,7 +205,7 @@ class PeerLink:
         for tag, p in latest.items():
             kind = tag.removeprefix("peer.")
             try:
-                data = encode(p)
+                data = self.encode(p)
             except MessageError as exc:  # never send a non-finite estimate to the fleet
                 self.drops.drop(exc.reason, f"{tag}: {exc.detail}", DropScope.OWN)
                 continue
