@@ -9,8 +9,11 @@ simulation time, so its work per simulated second does not depend on how fast th
 is allowed to run (``--speedup``).
 
 The bearing -> setpoint latency (p50 over the daemons / worst p99, wall ms) is what every
-daemon logs on exit; it is comparable only at ``--speedup 1`` (slower, the core ticks are
-stretched in wall time).
+daemon logs on exit, in two windows (onboard/autopilot/base.py): ``b->wire``, the age of the
+newest frame at every setpoint sent (staleness: it includes up to a camera period of waiting
+for the next frame), and ``frame->wire``, each frame's capture to the first setpoint based on
+it (the loop's latency). Both are comparable only at ``--speedup 1`` (slower, the core ticks
+are stretched in wall time).
 
 ``--decode`` times instead ``messages.codec.decode`` of every peer payload kind (a sample
 built from each kind's field types: six neighbours, six-entry arrays), microseconds per
@@ -111,6 +114,9 @@ def measure(vehicles: int, duration_s: float, speedup: float, seed: int) -> dict
         # bearing -> setpoint on the wire (wall ms, as the daemons log it, onboard/daemon/metrics)
         "latency_p50_ms": _pooled(logged, "p50_ms", np.median),
         "latency_p99_ms": _pooled(logged, "p99_ms", np.max),
+        # capture -> first setpoint on the wire based on that frame (the loop's latency)
+        "frame_p50_ms": _pooled(logged, "p50_ms", np.median, "frame_to_wire"),
+        "frame_p99_ms": _pooled(logged, "p99_ms", np.max, "frame_to_wire"),
         # where a daemon's CPU goes (onboard/daemon/profile.py; --profile), mean fractions
         "split": _mean_split(splits),
         "late_p99_ms": _late_p99(logged),
@@ -149,8 +155,10 @@ def _late_p99(metrics: list[dict[str, Any]]) -> float | None:
     return float(np.max(values)) if values else None
 
 
-def _pooled(metrics: list[dict[str, Any]], key: str, pool: Any) -> float | None:
-    values = [m["bearing_to_wire"].get(key) for m in metrics]
+def _pooled(
+    metrics: list[dict[str, Any]], key: str, pool: Any, window: str = "bearing_to_wire"
+) -> float | None:
+    values = [m.get(window, {}).get(key) for m in metrics]
     values = [v for v in values if v is not None]
     return float(pool(values)) if values else None
 
@@ -225,9 +233,11 @@ def _row(name: str, m: dict[str, Any]) -> str:
     err = m["scale_error"]
     lat = [m.get(k) for k in ("latency_p50_ms", "latency_p99_ms")]
     lat_txt = "-" if None in lat else f"{lat[0]:.0f} / {lat[1]:.0f}"
+    frm = [m.get(k) for k in ("frame_p50_ms", "frame_p99_ms")]
+    frm_txt = "-" if None in frm else f"{frm[0]:.0f} / {frm[1]:.0f}"
     return (
         f"{name:<10} {m['cpu_s_per_sim_s']:>9.3f} {m['cpu_max']:>7.3f} {m['rss_mb']:>8.1f} "
-        f"{m['rss_max_mb']:>7.1f} {m['sim_s']:>6.1f} {lat_txt:>13} "
+        f"{m['rss_max_mb']:>7.1f} {m['sim_s']:>6.1f} {lat_txt:>13} {frm_txt:>13} "
         f"{'-' if err is None else f'{100 * err:.2f}%':>9} {m['landed']!s:>6}"
     )
 
@@ -277,7 +287,7 @@ def main() -> None:
         rows.append(("before", _measure_checkout(args.before.resolve(), args)))
     rows.append(("this", _measure_checkout(HERE.parent.parent, args)))
     print(f"{'checkout':<10} {'cpu s/s':>9} {'max':>7} {'RSS MB':>8} {'max':>7} {'sim s':>6} "
-          f"{'b->wire ms':>13} {'scale err':>9} {'landed':>6} {'late p99':>8}")  # fmt: skip
+          f"{'b->wire ms':>13} {'frame->wire':>13} {'scale err':>9} {'landed':>6} {'late p99':>8}")  # fmt: skip
     for name, m in rows:
         late = m.get("late_p99_ms")
         print(_row(name, m) + f" {'-' if late is None else f'{late:.1f}':>8}")

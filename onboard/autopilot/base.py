@@ -347,7 +347,12 @@ class AutopilotLink(ABC):
     config: LinkConfig
     setpoint_ages_s: deque[float]
     """For each setpoint sent with a ``source_t``: its age when it went on the wire (link
-    clock, seconds; a bounded window)."""
+    clock, seconds; a bounded window). How stale the stream is: it includes the time the
+    newest frame waits for the next one (up to a camera period)."""
+    frame_to_wire_s: deque[float]
+    """For each new ``source_t`` (a camera frame's first setpoint): its age when the first
+    setpoint based on it went on the wire. The loop's latency, capture -> Zenoh -> core tick ->
+    wire, without the camera's own sampling interval (issue 27's bearing -> setpoint target)."""
 
     @property
     @abstractmethod
@@ -400,7 +405,9 @@ class AutopilotLink(ABC):
         """Store the command to stream (heading-frame ``v_body``, yaw rate); returns it
         saturated and NaN-free. ``source_t`` (link
         clock) is when the newest measurement it is based on was taken: each send then records
-        its age in :attr:`setpoint_ages_s` (the daemon's bearing-to-wire latency)."""
+        its age in :attr:`setpoint_ages_s`, and the first send of a new ``source_t`` in
+        :attr:`frame_to_wire_s` (the daemon's bearing-to-wire latency). A backend that streams
+        sends a setpoint with a new ``source_t`` at once, not at the next stream period."""
 
     @abstractmethod
     def stop_streaming(self, reason: str = "requested") -> None: ...

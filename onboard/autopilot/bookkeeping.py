@@ -48,6 +48,7 @@ class LinkBookkeeping(AutopilotLink):
         self._t_setpoint = -math.inf
         self._source_t: float | None = None
         self.setpoint_ages_s: deque[float] = deque(maxlen=20_000)
+        self.frame_to_wire_s: deque[float] = deque(maxlen=20_000)
         self._stop = threading.Event()
 
     def telemetry(self) -> Telemetry:

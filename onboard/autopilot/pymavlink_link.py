@@ -60,6 +60,7 @@ from onboard.autopilot.states import (
     MAV_AUTOPILOT_INVALID,
     MAV_TYPE_ONBOARD_CONTROLLER,
     Attempt,
+    Saturated,
     TelemetryState,
     climb_done,
     flavour_from_autopilot,
@@ -93,6 +94,10 @@ class PymavlinkLink(LinkBookkeeping):
         self._t0 = self._clock()
         self._t_heartbeat_sent = -math.inf
         self._threads: list[threading.Thread] = []
+        self._wake = threading.Event()
+        """Set by :meth:`_on_setpoint` for a setpoint on a new frame: the sender sends at once."""
+        self._sent_source_t: float | None = None
+        """The ``source_t`` of the newest setpoint on the wire (a new one is a new frame's)."""
         self._other_systems: set[int] = set()
         """Autopilots heard that are not ``config.system_id`` (named if it never comes)."""
         self._verifier: SignatureVerifier | None = None
@@ -179,6 +184,7 @@ class PymavlinkLink(LinkBookkeeping):
             self._provisional_mode = None
             self._link_lost = False
             self._setpoint_stale = False
+            self._sent_source_t = None
             self._t_heartbeat_sent = -math.inf
             self._stream = StreamState.IDLE
             self._counts = dict.fromkeys(self._counts, 0)
@@ -192,6 +198,7 @@ class PymavlinkLink(LinkBookkeeping):
         """Stop the stream and the threads, close the connection (idempotent)."""
         self.stop_streaming("closed")
         self._stop.set()
+        self._wake.set()
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(timeout=2.0)
@@ -346,14 +353,28 @@ class PymavlinkLink(LinkBookkeeping):
         return int((self._clock() - self._t0) * 1000.0) & 0xFFFFFFFF
 
     def _send_loop(self) -> None:
+        """The stream at ``rate_hz``, and a setpoint at once when the daemon sets one based on a
+        new camera frame (:meth:`_on_setpoint`): the stream period then restarts from that send,
+        so a frame's command waits for no stream slot and the rate stays bounded (at most the
+        stream's plus the camera's)."""
         period = 1.0 / self.config.rate_hz
         next_t = self._clock()
-        while not self._stop.wait(max(0.0, next_t - self._clock())):
+        while not self._stop.is_set():
+            prompt = self._wake.wait(max(0.0, next_t - self._clock()))
+            if self._stop.is_set():
+                return
+            self._wake.clear()
             now = self._clock()
-            next_t += period
+            next_t = now + period if prompt else next_t + period
             if next_t < now:  # fell behind (a stalled machine): do not burst to catch up
                 next_t = now + period
             self._tick(now)
+
+    def _on_setpoint(self, sat: Saturated) -> None:
+        with self._cond:
+            fresh = self._source_t is not None and self._source_t != self._sent_source_t
+        if fresh:
+            self._wake.set()
 
     def _tick(self, now: float) -> None:
         """One sender period: companion heartbeat, link watchdog, the setpoint."""
@@ -384,6 +405,7 @@ class PymavlinkLink(LinkBookkeeping):
                 self._setpoint_stale = stale
             ts, tc = self._target
             source_t = self._source_t if sp is self._setpoint else None
+            first = source_t is not None and source_t != self._sent_source_t
         v, r = sp.v_body, sp.yaw_rate_rad_s
         sent = self._send(
             lambda mav: mav.set_position_target_local_ned_send(
@@ -394,7 +416,12 @@ class PymavlinkLink(LinkBookkeeping):
         if sent:
             self._count("setpoints_sent")
             if source_t is not None:
-                self.setpoint_ages_s.append(self._clock() - source_t)
+                age = self._clock() - source_t
+                self.setpoint_ages_s.append(age)
+                if first:
+                    with self._cond:
+                        self._sent_source_t = source_t
+                    self.frame_to_wire_s.append(age)
 
     # --- public state ---------------------------------------------------------------------------
     # --- setpoints ------------------------------------------------------------------------------

@@ -263,6 +263,9 @@ class AgentDaemon:
         self._status_seq = 0
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
+        self._frame_link_s: tuple[float, float | None] = (-math.inf, None)
+        """(frame stamp, its capture on the link clock), converted once per frame: the link
+        tells a new frame's setpoint by a new ``source_t``."""
         self._step_error_s = -math.inf
         self._estimate_healthy = True
         self._stall_mono = -math.inf  # when the core loop last stalled (time.monotonic)
@@ -660,11 +663,15 @@ class AgentDaemon:
         return sorted(now_skewed)
 
     def _frame_link_time(self, now_s: float) -> float | None:
-        """When (link clock) the newest bearing frame used so far was captured."""
-        if not math.isfinite(self._newest_frame_s):
+        """When (link clock) the newest bearing frame used so far was captured (the same value
+        on every tick of one frame)."""
+        stamp_s = self._newest_frame_s
+        if not math.isfinite(stamp_s):
             return None
-        speedup = self.clock.speedup
-        return self.link.config.clock() - (now_s - self._newest_frame_s) / max(speedup, 1e-6)
+        if self._frame_link_s[0] != stamp_s:
+            speedup = max(self.clock.speedup, 1e-6)
+            self._frame_link_s = (stamp_s, self.link.config.clock() - (now_s - stamp_s) / speedup)
+        return self._frame_link_s[1]
 
     def _shutdown(self) -> None:
         c = self.fleet.config
@@ -677,4 +684,5 @@ class AgentDaemon:
         self.state.set(Phase.STOPPED)
         summary = self.metrics.summary()
         summary["bearing_to_wire"] = percentiles_ms(list(self.link.setpoint_ages_s))
+        summary["frame_to_wire"] = percentiles_ms(list(self.link.frame_to_wire_s))
         log.info("metrics %s", json.dumps(summary))

@@ -8,6 +8,8 @@ would. Socket behaviour is covered by ``tests/e2e/test_autopilot_link.py``.
 from __future__ import annotations
 
 import math
+import time
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -336,3 +338,34 @@ def test_errors_of_a_broken_connection_are_counted_not_raised(link):
     v.close = close  # type: ignore[method-assign]
     link.close()
     assert link.telemetry().counters.link_errors == 3
+
+
+def test_a_setpoint_on_a_new_frame_goes_out_at_once_not_at_the_next_stream_slot():
+    """Issue 27's latency: the sender waits for no stream period when the daemon sets a
+    setpoint based on a new camera frame; the same frame's later setpoints wait for the
+    stream. ``frame_to_wire_s`` holds one age per frame, ``setpoint_ages_s`` one per send."""
+    lk = PymavlinkLink(replace(FAST, rate_hz=2.0))  # a 0.5 s stream period
+    try:
+        v = FakeVehicle(lk)
+        v.heartbeat()
+        lk._stream = StreamState.ACTIVE
+        lk._start_thread(lk._send_loop, "test-sender")
+
+        def setpoints() -> int:
+            return sum(m.get_type() == "SET_POSITION_TARGET_LOCAL_NED" for m in list(v.sent))
+
+        time.sleep(0.1)  # the stream's first slot has passed
+        before = setpoints()
+        frame_t = lk._clock()
+        lk.set_setpoint(Setpoint((0.5, 0.0, 0.0), 0.0), source_t=frame_t)
+        t0 = time.monotonic()
+        while setpoints() == before and time.monotonic() - t0 < 1.0:
+            time.sleep(0.002)
+        assert time.monotonic() - t0 < 0.1, "the frame's setpoint waited for the stream slot"
+        lk.set_setpoint(Setpoint((0.6, 0.0, 0.0), 0.0), source_t=frame_t)  # same frame
+        time.sleep(0.2)
+        assert setpoints() == before + 1  # no prompt send for a frame already on the wire
+        assert len(lk.frame_to_wire_s) == 1 and 0.0 <= lk.frame_to_wire_s[0] < 0.1
+        assert list(lk.setpoint_ages_s) == list(lk.frame_to_wire_s)
+    finally:
+        lk.close()
