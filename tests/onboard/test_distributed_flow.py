@@ -46,12 +46,14 @@ def test_bearing_localization_keeps_lambda_at_least_one_and_converges(seed: int)
     assert position_error_m(res.t, p, rotate=False) < 0.05 * np.ptp(p)
 
 
-@pytest.mark.parametrize("ranged", [False, True])
-def test_accelerated_localization_reaches_the_minimizer_from_random_starts(ranged: bool) -> None:
+@pytest.mark.parametrize(("ranged", "rounds"), [(False, 6000), (True, 10000)])
+def test_accelerated_localization_reaches_the_minimizer_from_random_starts(
+    ranged: bool, rounds: int
+) -> None:
     """10 random instances at once (a disjoint graph): with the extrapolated step the weak scale
-    mode no longer stalls the run, every instance ends after 10 000 rounds within 1e-3 of its extent of the truth (the
-    plain descent left 60-80% of them above that after 3000 rounds), and the states keep
-    ``lambda >= 1`` every round (bearing-only)."""
+    mode no longer stalls the run, every instance ends within 1e-3 of its extent of the truth
+    after 6000 rounds (10 000 with a range; plain descent left 60-80% of such starts above that
+    after 3000 rounds), and the states keep ``lambda >= 1`` every round (bearing-only)."""
     rng = np.random.default_rng(5)
     n, runs = 10, 10
     e1 = _graph(n)
@@ -63,7 +65,7 @@ def test_accelerated_localization_reaches_the_minimizer_from_random_starts(range
         ranges = np.full(len(e), np.nan)
         ranges[:: len(e1)] = d[:: len(e1)]  # one range per instance
     t0, lam0 = rng.normal(0, 5, p.shape), rng.uniform(1, 4, len(e))
-    res = localize(e, u, t0, lam0, 10000, ranges, record_cost=False)
+    res = localize(e, u, t0, lam0, rounds, ranges, record_cost=False)
     if not ranged:
         assert res.lam_min_seen >= 1.0
     for k in range(runs):
