@@ -24,6 +24,14 @@ once, e.g. by max-consensus). Where the cost is not globally smooth (formation c
 curvature grows like ``1 / distance``) :func:`displacement_step` bounds the motion per step by a
 fraction of the minimum separation instead.
 
+Acceleration (:func:`momentum_weight`, not in the paper): a convex cost (localization with
+``f_T = x^2`` and a quadratic ``f_D``, a convex constraint) may take the projected step from the
+extrapolated point ``y = x_k + w_k (x_k - x_{k-1})`` with ``w_k = k / (k + 3)`` (FISTA with
+Chambolle and Dossal's weights, "On the convergence of the iterates of FISTA", JOTA 2015): the
+cost then falls like ``1 / k^2`` instead of ``1 / k`` and the iterates still converge to a
+minimizer. Each agent extrapolates its own states with the shared round counter ``k``: still a
+distributed update. Measured on paper 002's localization: docs/distributed.md.
+
 Leader (:func:`apply_leaders`): an agent whose state is driven from outside (an operator, a
 waypoint list, or a fixed anchor) ignores its gradient and follows a given velocity; the others
 keep descending, so they follow it through their edges.
@@ -88,6 +96,13 @@ def so3_step(rot: FloatArray, grad_body: FloatArray, h_k: float) -> FloatArray:
 def project_lower(y: FloatArray, lower: float | None) -> FloatArray:
     """Projection on ``y >= lower`` (paper 002 eq. 17); ``None`` leaves ``y`` unconstrained."""
     return y if lower is None else np.maximum(y, lower)
+
+
+def momentum_weight(k: int) -> float:
+    """The extrapolation weight ``w_k = k / (k + 3)`` of round ``k >= 0`` (module docstring)."""
+    if k < 0:
+        raise ValueError("the round counter must be >= 0")
+    return k / (k + 3.0)
 
 
 def lipschitz_step(lipschitz: float, safety: float = 1.0) -> float:

@@ -35,13 +35,46 @@ def test_bearing_localization_keeps_lambda_at_least_one_and_converges(seed: int)
     e = _graph(n)
     p = rng.uniform(-5, 5, (n, 3))
     u, _ = bearings_from_positions(p, e)
-    res = localize(e, u, rng.normal(0, 5, (n, 3)), rng.uniform(0.0, 4.0, len(e)), 3000)
+    res = localize(
+        e, u, rng.normal(0, 5, (n, 3)), rng.uniform(0.0, 4.0, len(e)), 3000, accelerated=False
+    )
     assert res.lam_min_seen >= 1.0  # eq. 17 along the whole flow (initial values projected)
     assert np.all(np.diff(res.cost) <= 1e-12)  # the step-size rule: descent at every round
     assert res.cost[-1] < 1e-4 * res.cost[0]
     # Slow tail: once the flow shrinks onto lambda = 1 on a few edges, those edges alone hold the
     # scale (a weak mode); 3000 rounds leave a few percent of the extent (docs/distributed.md).
     assert position_error_m(res.t, p, rotate=False) < 0.05 * np.ptp(p)
+
+
+@pytest.mark.parametrize(("ranged", "rounds"), [(False, 6000), (True, 10000)])
+def test_accelerated_localization_reaches_the_minimizer_from_random_starts(
+    ranged: bool, rounds: int
+) -> None:
+    """10 random instances at once (a disjoint graph): with the extrapolated step the weak scale
+    mode no longer stalls the run, every instance ends within 1e-3 of its extent of the truth
+    after 6000 rounds (10 000 with a range; plain descent left 60-80% of such starts above that
+    after 3000 rounds), and the states keep ``lambda >= 1`` every round (bearing-only)."""
+    rng = np.random.default_rng(5)
+    n, runs = 10, 10
+    e1 = _graph(n)
+    e = np.concatenate([e1 + k * n for k in range(runs)])
+    p = rng.uniform(-5, 5, (runs * n, 3))
+    u, d = bearings_from_positions(p, e)
+    ranges = None
+    if ranged:
+        ranges = np.full(len(e), np.nan)
+        ranges[:: len(e1)] = d[:: len(e1)]  # one range per instance
+    t0, lam0 = rng.normal(0, 5, p.shape), rng.uniform(1, 4, len(e))
+    res = localize(e, u, t0, lam0, rounds, ranges, record_cost=False)
+    if not ranged:
+        assert res.lam_min_seen >= 1.0
+    for k in range(runs):
+        s = slice(k * n, (k + 1) * n)
+        if ranged:
+            err = np.max(np.linalg.norm(res.t[s] - res.t[s].mean(0) - p[s] + p[s].mean(0), axis=1))
+        else:
+            err = position_error_m(res.t[s], p[s], rotate=False)
+        assert err < 1e-3 * np.ptp(p[s]), k
 
 
 def test_projection_blocks_the_trivial_minimizer() -> None:
@@ -57,7 +90,9 @@ def test_projection_blocks_the_trivial_minimizer() -> None:
     assert res.lam_min_seen == 1.0
     assert res.lam.min() >= 1.0
     assert position_error_m(res.t, p, rotate=False) < 1e-3 * np.ptp(p)
-    np.testing.assert_allclose(res.lam / res.lam[0], d / d[0], rtol=1e-2)  # slow scale tail
+    np.testing.assert_allclose(
+        res.lam / res.lam[0], d / d[0], rtol=1e-9
+    )  # 4e-3 without acceleration
 
 
 def test_bearing_distance_localization_recovers_the_scale() -> None:
