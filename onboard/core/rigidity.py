@@ -86,7 +86,7 @@ UNCERTAIN_REL = 0.10
 def lag_uncertainty(rate_prev: float, lam_prev: float, lam_now: float, dt_s: float) -> float:
     """The decaying peak of ``|d lambda_hat / dt|`` after one period ``dt_s`` (multiply by
     :data:`UNCERTAINTY_LAG_S` for the estimate's uncertainty): how far the eigenvalue may have
-    moved since the estimate last caught up with it (docs/rigidity.md, "Uncertainty")."""
+    moved since the estimate last caught up with it (README, "Paper 003", reproduced numbers)."""
     rate = abs(lam_now - lam_prev) / dt_s
     return max(rate, rate_prev * math.exp(-dt_s / UNCERTAINTY_HOLD_S))
 
