@@ -8,13 +8,12 @@ iteration per step (:mod:`onboard.estimation.distributed_eigen`, with the PI and
 of :mod:`onboard.estimation.round_consensus`), the rigidity, collision and tracking actions
 (eq. 19-23, 30-33, :mod:`onboard.control.rigidity`), the saturation and the kinematic world.
 
-The formulas are not written here: the star (rigidity-matrix products, weighted degree, form
-gradient, angle localization), the trivial basis, the consensus inputs, the Ritz problem, the
-blend and the barrier are :mod:`onboard.rigidity.kernels`, which the layer runs as plain Python
-and this loop calls compiled (:func:`sim.jit.compiled`). What remains here is the
-orchestration (messages, inboxes, rounds) and a few loop sums the layer does with numpy (the PI
-round, the ``V`` update, the assembled gradients), so the engines agree to round-off (5e-17 m
-over the agreement test's runs without loss, 6e-16 m with 30% loss), not bit for bit.
+Each function below is the loop form of the onboard function it names (same equations, same
+order of operations where it matters). The two engines agree to round-off, not bit for bit:
+matrix products are summed by loops here and by BLAS there, and the Ritz problem's 7x7 solve
+and 3x3 symmetric eigenproblems are an LU and Jacobi rotations here, LAPACK there (a LAPACK
+call costs ten times the arithmetic of these sizes; the Ritz pairs do not depend on the basis
+the eigensolver returns, and the eigenvectors enter only through sign-free quadratic forms).
 
 **Messages**: the payloads a vehicle publishes at step ``k`` go into a ring of ``delay`` slots
 (``o_*[slot, sender]``) and reach every other vehicle at step ``k + delay`` (``delay = 1 +
