@@ -69,13 +69,10 @@ def parameters(cfg: AgentConfig, runner: RunnerConfig) -> FloatArray:
         rk.P_W_MAX: cfg.safety.yaw_rate_max_rad_s,
         rk.P_PEER_TIMEOUT: cfg.safety.peer_timeout_s,
         rk.P_WARMUP: cfg.rigidity.rigidity_warmup_s,
-        **dict(
-            zip(
-                (rk.P_RANGE_ONE, rk.P_RANGE_WIDTH, rk.P_FOV_ONE, rk.P_FOV_WIDTH),
-                model.steps,
-                strict=True,
-            )
-        ),
+        rk.P_RANGE_ONE: model.range_full_m,
+        rk.P_RANGE_WIDTH: model.range_m - model.range_full_m,
+        rk.P_FOV_ONE: model.cos_fov_full,
+        rk.P_FOV_WIDTH: model.cos_fov_edge - model.cos_fov_full,
         rk.P_CAM_COS_HALF: -2.0 if fov >= 360.0 else float(np.cos(np.deg2rad(fov) / 2.0)),
         rk.P_CAM_RANGE: runner.sensing_range_m,
         rk.P_YAW_GAIN: 0.2,

@@ -47,7 +47,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from onboard.geometry import FloatArray, camera_axis_ned, rot_z
-from onboard.rigidity import kernels as kn
+
+BARRIER_FLOOR = 1e-3
+"""Fraction of ``x_safe - x_min`` above ``x_min`` where the barrier's slope saturates."""
 
 
 def rational_barrier(
@@ -67,8 +69,11 @@ def rational_barrier(
     inside = xs > x_min
     xv = np.clip(xs, np.nextafter(x_min, np.inf), x_safe)
     value = np.where(inside, gain * (x_safe - xv) ** 2 / ((xv - x_min) * c), np.inf)
-    slope = np.array([kn.barrier_slope(v, x_min, x_safe, gain) for v in xs.ravel().tolist()])
-    return value, slope.reshape(xs.shape)
+    xc = np.clip(xs, x_min + BARRIER_FLOOR * c, x_safe)
+    a = x_safe - xc
+    b = xc - x_min
+    slope = -gain * a * (a + 2.0 * b) / (c * b * b)
+    return value, slope
 
 
 @dataclass(frozen=True)
@@ -144,17 +149,16 @@ def collision_potential(
     ``p_others_ned`` is ``(M, 3)`` (neighbours' estimated positions, or targets). With
     ``b_ij = (p_j - p_i) / d_ij``: ``grad = -sum_j B'(d_ij) b_ij``.
     """
-    p_i = np.asarray(p_i_ned, dtype=float).reshape(3)
-    others = np.asarray(p_others_ned, dtype=float).reshape(-1, 3)
-    r = others - p_i
+    p_i = np.asarray(p_i_ned, dtype=float)
+    r = np.asarray(p_others_ned, dtype=float).reshape(-1, 3) - p_i
     d = np.sqrt((r * r).sum(axis=1))  # row norms
     if (d == 0.0).any():
         raise ValueError("coincident positions: collision potential undefined")
     near = d < gains.r_safe_m
     if not near.any():
         return 0.0, np.zeros(3)
-    v, _ = rational_barrier(d[near], gains.r_coll_m, gains.r_safe_m, gains.k_collision)
-    grad = kn.collision_gradient(p_i, others, gains.r_coll_m, gains.r_safe_m, gains.k_collision)
+    v, s = rational_barrier(d[near], gains.r_coll_m, gains.r_safe_m, gains.k_collision)
+    grad = -np.sum(s[:, None] * r[near] / d[near, None], axis=0)
     return float(np.sum(v)), grad
 
 

@@ -51,11 +51,10 @@ from onboard.estimation.distributed_eigen import (
     EigenGains,
     Neighbours,
     n_consensus,
-    trivial_motion_block,
+    trivial_motion_blocks,
 )
 from onboard.geometry import FloatArray
 from onboard.graph import complete_graph
-from onboard.rigidity import kernels as kn
 from onboard.rigidity.angle import weighted_eigenvalues_gradients
 from onboard.rigidity.weights import SensingModel
 
@@ -96,11 +95,20 @@ def estimate_uncertain(lambda_hat: float, uncertainty: float) -> bool:
     return uncertainty > UNCERTAIN_REL * abs(lambda_hat)
 
 
+BLEND_FLOOR = 1e-3
+"""Modes whose smooth-minimum weight is below this are left out of the blended gradient (the
+others' weights renormalized): a mode 0.07 above the smallest, at the default temperature."""
+
+
 def _blend(theta: FloatArray, tau: float) -> list[tuple[int, float]]:
     """``(mode, weight)`` of the modes the rigidity action blends
-    (:func:`onboard.rigidity.kernels.blend`: the smooth minimum's weights above its floor)."""
-    pi = kn.blend(np.asarray(theta, dtype=float), tau)
-    return [(m, float(w)) for m, w in enumerate(pi.tolist()) if w > 0.0]
+    (:func:`onboard.control.rigidity.softmin_weights`, above :data:`BLEND_FLOOR`)."""
+    if len(theta) == 0:
+        return []
+    pi = ctl.softmin_weights(theta, tau)
+    kept = [(m, float(w)) for m, w in enumerate(pi.tolist()) if w >= BLEND_FLOOR]
+    total = sum(w for _, w in kept)
+    return [(m, w / total) for m, w in kept]
 
 
 def _keep(j: int, msg: Any) -> bool:
@@ -517,16 +525,15 @@ class RigidityLayer:
         mv_i = mv[0] + mv_in
         s_i = float(s_parts[0]) + s_in
         # the Ritz vectors' blocks with this agent's view of the Ritz problem (previous round)
-        p_blocks = np.array([p_own, *[p_est[j] for j in cand]])
-        t_i = trivial_motion_block(p_own)
-        y = eig.ritz_blocks(p_blocks, np.concatenate([eig.v[None], v_cand]))
+        t_blocks = trivial_motion_blocks(np.array([p_own, *[p_est[j] for j in cand]]))
+        y = eig.ritz_blocks(np.concatenate([eig.v[None], v_cand]), t_blocks)
         g_form, g_form_yaw = np.zeros((len(cand) + 1, 3)), 0.0
         if y is not None:  # the smooth minimum's gradient: the modes' gradients, blended
             for m, weight in _blend(eig.theta, self.gains.softmin_tau):
                 g_m, g_m_yaw = st.form_gradient_only(s_cand, y[0, :, m], y[1:, :, m])
                 g_form = g_form + weight * g_m
                 g_form_yaw += weight * g_m_yaw
-        eig.step(t_i, mv_i, s_i, nbrs)
+        eig.step(t_blocks[0], mv_i, s_i, nbrs)
         x, z = eig.share()
         # after a restart (the estimator diverged) there is no consensus state to send until
         # its next round: an empty one was counted as malformed by every neighbour

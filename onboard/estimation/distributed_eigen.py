@@ -55,6 +55,7 @@ from functools import cache
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import lapack
 
 from onboard.estimation.round_consensus import (
     RoundGains,
@@ -64,30 +65,53 @@ from onboard.estimation.round_consensus import (
 )
 from onboard.estimation.star_rigidity import Star, star, weighted_degree, weighted_matvec
 from onboard.geometry import FloatArray, IntArray
-from onboard.rigidity import kernels as kn
-from onboard.rigidity.kernels import N_TRIVIAL
 from onboard.rigidity.weights import SensingModel
 
+N_TRIVIAL = 7
 _TRIU_T = np.triu_indices(N_TRIVIAL)
 _N_TRIU_T = len(_TRIU_T[0])
 MAX_BLOCK_NORM2 = 1e4
 """An agent's ``|V_i|^2`` above this (the equilibrium is about ``k``) means divergence."""
+TT_RCOND = 1e-9
+"""``T^T T / N`` whose LU pivots span more than this ratio is singular: fewer than three agents
+are in the average yet (an agent's first round averages its own ``T_i^T T_i``, of rank 3), and
+the trivial coefficients are not defined. Solved anyway, its round-off-sized pivots gave
+coefficients of any size, which kicked ``V`` by ``k_t T_i coef`` (and made the first rounds
+depend on the last bit of ``T_i``)."""
+RITZ_RCOND = 1e-6
+"""Directions of ``G'`` below this fraction of its largest eigenvalue are left out of the Ritz
+problem (the columns of ``V`` have (nearly) collapsed onto each other or onto trivial motions)."""
 
 
 def trivial_motion_block(p_ned: ArrayLike) -> FloatArray:
-    """Agent ``i``'s rows ``T_i = [I_3, -hat(p_i), p_i]`` of the trivial-motion basis ``(3, 7)``
-    (:func:`onboard.rigidity.kernels.trivial_block`).
+    """Agent ``i``'s rows ``T_i = [I_3, -hat(p_i), p_i]`` of the trivial-motion basis ``(3, 7)``.
 
     Columns: translations along ``e_m``, rotations about ``e_m`` (``e_m x p_i = -hat(p_i) e_m``)
     and scaling (paper 003 eq. 4). The span does not depend on the origin of ``p``.
     """
-    return kn.trivial_block(np.asarray(p_ned, dtype=float).reshape(3))
+    return trivial_motion_blocks(np.asarray(p_ned, dtype=float).reshape(1, 3))[0]
 
 
 def trivial_motion_blocks(p_ned: ArrayLike) -> FloatArray:
     """:func:`trivial_motion_block` of every row of ``p_ned`` ``(K, 3)``: ``(K, 3, 7)``."""
     p = np.asarray(p_ned, dtype=float).reshape(-1, 3)
-    return np.array([kn.trivial_block(q) for q in p]).reshape(len(p), 3, N_TRIVIAL)
+    # entries 0, 1, x, y, z, -x, -y, -z of each row, placed by _T_LAYOUT:
+    # [I_3 | -hat(p) | p] with -hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]
+    values = np.zeros((len(p), 8))
+    values[:, 1] = 1.0
+    values[:, 2:5] = p
+    values[:, 5:] = -p
+    return values[:, _T_LAYOUT]
+
+
+_T_LAYOUT = np.array(
+    [
+        [1, 0, 0, 0, 4, 6, 2],
+        [0, 1, 0, 7, 0, 2, 3],
+        [0, 0, 1, 3, 5, 0, 4],
+    ]
+)
+"""Where :func:`trivial_motion_blocks` reads each entry of ``T_i`` from ``(0, 1, p, -p)``."""
 
 
 def trivial_motion_basis(p_ned: ArrayLike) -> FloatArray:
@@ -133,8 +157,17 @@ def _eye(k: int) -> FloatArray:
 
 def consensus_input(t_i: FloatArray, v_i: FloatArray, mv_i: FloatArray) -> FloatArray:
     """Agent ``i``'s terms of the averaged quantities (:func:`n_consensus`), from ``T_i``
-    ``(3, 7)``, ``V_i`` and ``(M_w V)_i`` ``(3, k)`` (:func:`onboard.rigidity.kernels.consensus_input`)."""
-    return kn.consensus_input(t_i, v_i, mv_i)
+    ``(3, 7)``, ``V_i`` and ``(M_w V)_i`` ``(3, k)``."""
+    iu = _triu(v_i.shape[1])
+    vmv = v_i.T @ mv_i
+    return np.concatenate(
+        [
+            (t_i.T @ v_i).ravel(),
+            (t_i.T @ t_i)[_TRIU_T],
+            (v_i.T @ v_i)[iu],
+            (0.5 * (vmv + vmv.T))[iu],
+        ]
+    )
 
 
 @dataclass(frozen=True)
@@ -156,15 +189,29 @@ class Averages:
         )
 
 
-def ritz(x: FloatArray, k: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Rayleigh-Ritz on the span of ``V`` with trivial motions removed, from the packed averages
-    ``x`` (:func:`n_consensus`) of ``k`` columns (:func:`onboard.rigidity.kernels.ritz`).
+def ritz(avg: Averages) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Rayleigh-Ritz on the span of ``V`` with trivial motions removed.
 
     Returns ``(theta (r,), c (k, r), coef (7, k))``: Ritz values ascending, coefficient vectors
     with ``c^T G' c = I`` and the trivial coefficients ``coef = (T^T T)^{-1} T^T V`` (so
     ``P_T V`` has blocks ``T_i coef``). ``r <= k`` drops ill-conditioned directions.
     """
-    return kn.ritz(np.asarray(x, dtype=float), k)
+    k = avg.vv.shape[0]
+    # LAPACK directly: these are 3x3 and 7x7 problems, where numpy's wrappers cost 5x the work
+    lu, _, coef, info = lapack.dgesv(avg.tt, avg.tv)
+    pivots = np.abs(np.diag(lu))
+    if info != 0 or not np.isfinite(coef).all() or not pivots.min() > TT_RCOND * pivots.max():
+        coef = np.zeros((N_TRIVIAL, k))
+    ev, u, info = lapack.dsyevd(avg.vv - avg.tv.T @ coef)  # G' (symmetric)
+    top = float(ev[-1]) if info == 0 else 0.0
+    if not top > 0.0:
+        return np.zeros(0), np.zeros((k, 0)), coef
+    keep = ev > RITZ_RCOND * top
+    w_half = u[:, keep] / np.sqrt(ev[keep])  # G'^{-1/2} on the kept directions
+    theta, s, info = lapack.dsyevd(w_half.T @ avg.vmv @ w_half)
+    if info != 0:
+        return np.zeros(0), np.zeros((k, 0)), coef
+    return theta, w_half @ s, coef
 
 
 @dataclass(frozen=True)
@@ -267,7 +314,7 @@ class DistributedEigenEstimator:
         self.s_bar = max_round(s_own, self.s_bar, nb.s_bar, g.forget)
 
         avg = Averages.unpack(self.x, k)
-        theta, c, coef = ritz(self.x, k)
+        theta, c, coef = ritz(avg)
         self.coef = coef
         if len(theta):
             self.theta = theta
@@ -284,18 +331,13 @@ class DistributedEigenEstimator:
             self.x, self.z = None, None
         self.v = v_new
 
-    def ritz_blocks(self, p_blocks: FloatArray, v_blocks: FloatArray) -> FloatArray | None:
+    def ritz_blocks(self, v_blocks: FloatArray, t_blocks: FloatArray) -> FloatArray | None:
         """Blocks ``y_jm = (V_j - T_j coef) c_m`` ``(K, 3, r)`` of the Ritz vectors (smallest
-        first) for agents at ``p_j`` ``(K, 3)`` with ``V_j`` ``(K, 3, k)``, this agent first
-        (its own view of ``coef`` and ``c``; :func:`onboard.rigidity.kernels.ritz_blocks`);
-        ``None`` before the first Ritz value."""
+        first) for agents with ``V_j`` ``(K, 3, k)`` and ``T_j`` ``(K, 3, 7)`` (this agent's own
+        view of ``coef`` and ``c``); ``None`` before the first Ritz value."""
         if self.c_ritz is None or self.coef is None:
             return None
-        p = np.asarray(p_blocks, dtype=float).reshape(-1, 3)
-        v = np.asarray(v_blocks, dtype=float)
-        return kn.ritz_blocks(
-            p[0], v[0], p[1:], v[1:], self.coef, self.c_ritz, self.c_ritz.shape[1]
-        )
+        return (v_blocks - t_blocks @ self.coef) @ self.c_ritz
 
 
 def run_rounds(
@@ -340,7 +382,6 @@ def run_rounds(
             s_in[list(cand)] += deg[1:]
         return stars, s_in, trivial_motion_blocks(p)
 
-    p_now = p
     stars, s_in, t_blocks = frame(p, yaw)
     v_shared = [e.v.copy() for e in est]
     contrib: dict[tuple[int, int], FloatArray] = {}
@@ -348,8 +389,9 @@ def run_rounds(
     out = np.zeros((n_rounds, n))
     for r in range(n_rounds):
         if switch is not None and r == switch[0]:
-            p_now = np.asarray(switch[1], dtype=float)
-            stars, s_in, t_blocks = frame(p_now, np.asarray(switch[2], dtype=float))
+            stars, s_in, t_blocks = frame(
+                np.asarray(switch[1], dtype=float), np.asarray(switch[2], dtype=float)
+            )
         new_contrib: dict[tuple[int, int], FloatArray] = {}
         new_states: list[tuple[FloatArray, FloatArray, int, float] | None] = [None] * n
         for i, e in enumerate(est):
@@ -371,5 +413,5 @@ def run_rounds(
         contrib = new_contrib
         states = new_states
         v_shared = [e.v.copy() for e in est]
-    y = est[0].ritz_blocks(p_now, np.array([e.v for e in est]))
+    y = est[0].ritz_blocks(np.array([e.v for e in est]), t_blocks)
     return out, np.zeros((n, 3)) if y is None else y[:, :, 0]

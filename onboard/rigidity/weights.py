@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -106,18 +107,6 @@ class SensingModel:
         """Cosine of the half field of view, where the fov weight reaches 0."""
         return math.cos(math.radians(self.fov_deg) / 2.0)
 
-    @property
-    def steps(self) -> tuple[float, float, float, float]:
-        """``(range_one, range_width, fov_one, fov_width)``: where each smooth step starts and
-        how wide it is (:func:`onboard.rigidity.kernels.cubic_step`; width 0: no roll-off)."""
-        if math.isinf(self.range_m):
-            range_one, range_width = 0.0, 0.0
-        else:
-            range_one, range_width = self.range_full_m, self.range_m - self.range_full_m
-        if self.all_round:
-            return range_one, range_width, 0.0, 0.0
-        return range_one, range_width, self.cos_fov_full, self.cos_fov_edge - self.cos_fov_full
-
 
 def range_weight(d_m: ArrayLike, model: SensingModel) -> tuple[FloatArray, FloatArray]:
     """Range weight ``w_range(d)`` and ``d w_range / d d`` (paper 003 eq. 17-18)."""
@@ -133,6 +122,36 @@ def fov_weight(cos_axis: ArrayLike, model: SensingModel) -> tuple[FloatArray, Fl
     if model.all_round:
         return np.ones_like(c), np.zeros_like(c)
     return smooth_step(c, model.cos_fov_full, model.cos_fov_edge)
+
+
+def sensing_weights(
+    d_m: FloatArray, cos_axis: FloatArray, model: SensingModel
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`range_weight` of ``d_m`` and :func:`fov_weight` of ``cos_axis`` (both ``(M,)``):
+    ``(w_range, dw_range/dd, w_fov, dw_fov/dcos)`` (paper 003 eq. 17-18).
+
+    The two smooth steps are evaluated together, as the rows of one ``(2, M)`` array (one
+    numpy call per operation instead of two: this runs for every star, every step)."""
+    if math.isinf(model.range_m) or model.all_round:
+        return (*range_weight(d_m, model), *fov_weight(cos_axis, model))
+    value, slope = _cubic_step(np.array((d_m, cos_axis), dtype=float), *_step_rows(model))
+    return value[0], slope[0], value[1], slope[1]
+
+
+@cache
+def _step_rows(model: SensingModel) -> tuple[FloatArray, FloatArray]:
+    """``x_one`` and ``x_zero - x_one`` of the range and fov steps as ``(2, 1)`` columns."""
+    x_one = (model.range_full_m, model.cos_fov_full)
+    x_zero = (model.range_m, model.cos_fov_edge)
+    for one, zero in zip(x_one, x_zero, strict=True):
+        _check_ends(one, zero)
+    columns = (
+        np.array([[x_one[0]], [x_one[1]]]),
+        np.array([[x_zero[0] - x_one[0]], [x_zero[1] - x_one[1]]]),
+    )
+    for a in columns:
+        a.flags.writeable = False
+    return columns
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from onboard.rigidity.weights import (
     edge_weights,
     fov_weight,
     range_weight,
+    sensing_weights,
     smooth_step,
 )
 
@@ -197,6 +198,20 @@ def test_smooth_step_ends_and_derivative() -> None:
         smooth_step(x, 2.0, 2.0)
 
 
+@pytest.mark.parametrize(
+    "model",
+    [SensingModel(120.0, 15.0), SensingModel(360.0, 15.0), SensingModel(90.0, math.inf)],
+)
+def test_sensing_weights_are_the_range_and_fov_weights(model: SensingModel) -> None:
+    rng = np.random.default_rng(2)
+    d = rng.uniform(0.5, 20.0, 40)
+    cos_axis = rng.uniform(-1.0, 1.0, 40)
+    together = sensing_weights(d, cos_axis, model)
+    apart = (*range_weight(d, model), *fov_weight(cos_axis, model))
+    for a, b in zip(together, apart, strict=True):
+        np.testing.assert_array_equal(a, b)  # the same arithmetic, entry by entry
+
+
 def test_range_and_fov_weights_and_derivatives() -> None:
     model = SensingModel(fov_deg=90.0, range_m=10.0)
     assert model.range_full_m == pytest.approx(8.0)
@@ -343,27 +358,3 @@ def test_weighted_gradient_in_2d_matches_finite_differences() -> None:
     scale = max(np.abs(grad_p).max(), np.abs(grad_yaw).max())
     assert np.abs(grad_p - num_p).max() <= 1e-6 * scale
     assert np.abs(grad_yaw - num_yaw).max() <= 1e-6 * scale
-
-
-@pytest.mark.parametrize(
-    "model",
-    [SensingModel(120.0, 15.0), SensingModel(360.0, 15.0), SensingModel(90.0, math.inf)],
-)
-def test_kernel_steps_are_the_range_and_fov_weights(model: SensingModel) -> None:
-    """The loop form the star and the compiled engine use (one value at a time, width 0 for
-    no roll-off) is the vectorized weight of :mod:`onboard.rigidity.weights`."""
-    from onboard.rigidity.kernels import cubic_step
-
-    rng = np.random.default_rng(2)
-    d = rng.uniform(0.5, 20.0, 40)
-    cos_axis = rng.uniform(-1.0, 1.0, 40)
-    r_one, r_width, f_one, f_width = model.steps
-    loops = np.array(
-        [
-            (*cubic_step(x, r_one, r_width), *cubic_step(c, f_one, f_width))
-            for x, c in zip(d, cos_axis, strict=True)
-        ]
-    ).T
-    apart = (*range_weight(d, model), *fov_weight(cos_axis, model))
-    for a, b in zip(loops, apart, strict=True):
-        np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-15)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from onboard.estimation.distributed_eigen import (
+    Averages,
     EigenGains,
     consensus_input,
     n_consensus,
@@ -67,7 +68,7 @@ def test_ritz_recovers_eigenvalues_from_an_exact_subspace_with_trivial_parts() -
         [consensus_input(trivial_motion_block(p[i]), blocks[i], mv[i]) for i in range(n)], axis=0
     )
     assert len(x) == n_consensus(3)
-    theta, c, coef = ritz(x, 3)
+    theta, c, coef = ritz(Averages.unpack(x, 3))
     np.testing.assert_allclose(theta, w[7:10], rtol=1e-8)
     y = (v - t @ coef) @ c[:, 0]
     assert float(y @ y) == pytest.approx(n, rel=1e-8)  # |y|^2 = N
