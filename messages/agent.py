@@ -83,6 +83,10 @@ class AgentStatus(Payload, tag="agent.status"):
     """Neighbours heard from in the last second."""
     rigidity_eigenvalue: float | None = None
     """Weighted angle-rigidity eigenvalue (paper 003), when the agent estimates it."""
+    rigidity_eigenvalue_uncertainty: float | None = None
+    """How far the true eigenvalue may be from the estimate (its lag behind a fast-changing
+    framework, ``onboard.core.rigidity.lag_uncertainty``); ``rigidity_uncertain`` alarms above
+    10% of the estimate."""
     scale_converged: bool = False
     """Every SfM observer this agent knows has ``E`` below the convergence threshold."""
 

@@ -60,6 +60,9 @@ class Alarm(StrEnum):
     """Agent: a neighbour's clock disagrees with this vehicle's (``peer_clock:<id>``)."""
     RIGIDITY_LOST = "rigidity_lost"
     """Agent: without its lost neighbours the sensing graph is no longer rigid; it holds."""
+    RIGIDITY_UNCERTAIN = "rigidity_uncertain"
+    """Agent: the distributed rigidity-eigenvalue estimate's uncertainty exceeds 10% of it (it
+    lags a fast-changing framework): the reported eigenvalue is not to be trusted; no hold."""
     AUTOPILOT_STALE = "autopilot_stale"
     """Agent: the autopilot's telemetry is older than the stale limit; it holds."""
     BEARINGS_STALE = "bearings_stale"

@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike
 
 from onboard.core.agent import AgentCore
 from onboard.core.config import AgentConfig, build_config
+from onboard.core.rigidity import UNCERTAINTY_LAG_S, estimate_uncertain, lag_uncertainty
 from onboard.geometry import FloatArray, camera_axis_ned
 from onboard.graph import angle_set, complete_graph, sensing_graph
 from onboard.rigidity.angle import (
@@ -69,6 +70,9 @@ is "sufficiently dense": every robot engaged in mutual sensing)."""
 LOCALIZATION_PRIOR_SIGMA_M = 0.3
 RIGID_TOL = 1e-4
 """The weighted eigenvalue below this counts as "rigidity lost" (the paper's ``lambda = 0``)."""
+EXCURSION_REL = 0.10
+"""A distributed estimate further than this from the centralized value is an excursion (issue
+30); the summary counts how many the ``rigidity_uncertain`` alarm flags."""
 
 
 @dataclass(frozen=True)
@@ -293,6 +297,21 @@ class RigidityRecording:
             ),
         )
 
+    @property
+    def eigen_flagged(self) -> FloatArray:
+        """Where each agent's ``rigidity_uncertain`` alarm is raised ``(T, N)`` (bool): the
+        layer's :func:`onboard.core.rigidity.lag_uncertainty` on the recorded estimates (the
+        record period is the layer's measuring period, 0.1 s)."""
+        lam = self.lambda_hat
+        t = self.rec.t_s
+        rate = np.zeros(lam.shape[1])
+        out = np.zeros(lam.shape, dtype=bool)
+        for k in range(1, len(t)):
+            for i in range(lam.shape[1]):
+                rate[i] = lag_uncertainty(rate[i], lam[k - 1, i], lam[k, i], t[k] - t[k - 1])
+                out[k, i] = estimate_uncertain(lam[k, i], UNCERTAINTY_LAG_S * rate[i])
+        return out
+
     def summary(self) -> dict[str, object]:
         t = self.rec.t_s
         lam = self.lambda_true
@@ -305,6 +324,9 @@ class RigidityRecording:
         rel = np.abs(self.lambda_hat - central[:, None]) / np.maximum(central[:, None], 1e-9)
         valid = after & (central > self.lambda_min)
         loc = self.localization_error
+        flagged = self.eigen_flagged
+        excursion = (rel > EXCURSION_REL) & valid[:, None]
+        trusted = (rel <= EXCURSION_REL) & valid[:, None]
         return {
             "scenario": self.name,
             "seed": self.seed,
@@ -322,6 +344,11 @@ class RigidityRecording:
             "distributed_eigen_error_p95": float(np.percentile(rel[valid], 95))
             if np.any(valid)
             else None,
+            "distributed_eigen_excursions": int(excursion.sum()),
+            "distributed_eigen_excursions_flagged": float((excursion & flagged).sum())
+            / max(int(excursion.sum()), 1),
+            "distributed_eigen_false_alarm_rate": float((trusted & flagged).sum())
+            / max(int(trusted.sum()), 1),
             "distributed_vs_true_error_median": float(
                 np.median(
                     np.abs(self.lambda_hat[after] - lam[after, None])

@@ -53,6 +53,7 @@ from onboard.core.config import (
     Safety,
     ScaleGains,
 )
+from onboard.core.rigidity import estimate_uncertain
 from onboard.daemon.bearings import BearingSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
@@ -434,6 +435,10 @@ class AgentDaemon:
         alarms = list(self._alarms)
         if not self._estimate_healthy and Alarm.ESTIMATE_NONFINITE not in alarms:
             alarms.append(Alarm.ESTIMATE_NONFINITE.value)  # the guard holds from the next tick
+        unc = agent.rigidity_eigenvalue_uncertainty
+        lam = agent.rigidity_eigenvalue
+        if unc is not None and lam is not None and estimate_uncertain(lam, unc):
+            alarms.append(Alarm.RIGIDITY_UNCERTAIN.value)  # flagged, not trusted
         return VehicleStatus(
             sender=self.id,
             seq=self._status_seq,
