@@ -145,6 +145,10 @@ class ActiveGains(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """Gain of the coupling of ``w_l`` to the neighbours' shared values."""
     w_l_max_rad_s: float = 0.3
     """Bound of the active rotation rate ``w_l`` of eq. 13-15 (anti-windup, not in the paper)."""
+    w_l_start_rad_s: float = 0.0
+    """The damping of eq. 15 pulls ``w_l`` towards ``k_E(E)`` times this instead of 0
+    (:func:`onboard.control.active_scale.rotation_rate_derivative`): the active rotation starts
+    while the formation converges. 0: paper 000's eq. 15. Not in the paper."""
     # random-motion baseline
     random_tau_s: float = 1.0
 

@@ -64,6 +64,19 @@ def test_engines_agree_to_round_off(mode: str, loss: float) -> None:
         assert np.max(np.abs(b.chi_hat[-1] - b.chi_hat[1])) > 1e-3
 
 
+def test_engines_agree_with_the_rotation_start_bias() -> None:
+    """``w_l_start_rad_s`` goes through the one formula in both engines (and does something)."""
+    over = {"w_l_start_rad_s": 0.4, "w_l_max_rad_s": 0.6}
+    name = "scale-formation-active"
+    runs = [
+        run_scenario(name, seed=1, duration_s=1.0, engine=e, config_overrides=over)
+        for e in ("cores", "compiled")
+    ]
+    _assert_agree(*runs)
+    paper = run_scenario("scale-formation-active", seed=1, duration_s=1.0, engine="compiled")
+    assert np.max(np.abs(runs[1].w_l[-1])) > np.max(np.abs(paper.w_l[-1])) + 0.02
+
+
 def test_both_engines_lose_the_same_copies() -> None:
     """With loss the runs differ from the lossless one by far more than the engines differ
     from each other: the loss changed the run, and in the same way in both (formation-active
