@@ -64,17 +64,16 @@ def test_engines_agree_to_round_off(mode: str, loss: float) -> None:
         assert np.max(np.abs(b.chi_hat[-1] - b.chi_hat[1])) > 1e-3
 
 
-def test_engines_agree_with_the_rotation_start_bias() -> None:
-    """``w_l_start_rad_s`` goes through the one formula in both engines (and does something)."""
-    over = {"w_l_start_rad_s": 0.4, "w_l_max_rad_s": 0.6}
+def test_case4_rotation_starts_with_the_formation_motion() -> None:
+    """Case 4's start bias (sim.scenarios.CASE4_GAINS; the engines agree on it above) turns
+    the team within a second, where paper 000's eq. 15 has barely started."""
     name = "scale-formation-active"
-    runs = [
-        run_scenario(name, seed=1, duration_s=1.0, engine=e, config_overrides=over)
-        for e in ("cores", "compiled")
-    ]
-    _assert_agree(*runs)
-    paper = run_scenario("scale-formation-active", seed=1, duration_s=1.0, engine="compiled")
-    assert np.max(np.abs(runs[1].w_l[-1])) > np.max(np.abs(paper.w_l[-1])) + 0.02
+    paper_eq15 = {"w_l_start_rad_s": 0.0}
+    fast = run_scenario(name, seed=1, duration_s=1.0, engine="compiled")
+    paper = run_scenario(name, seed=1, duration_s=1.0, engine="compiled",
+                         config_overrides=paper_eq15)  # fmt: skip
+    assert np.min(np.abs(fast.w_l[-1])) > 0.1
+    assert np.mean(np.abs(paper.w_l[-1])) < 0.5 * np.mean(np.abs(fast.w_l[-1]))
 
 
 def test_both_engines_lose_the_same_copies() -> None:
