@@ -100,7 +100,8 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
     # network delay ``tau`` late, and a delayed consensus ``x' = -k L x(t - tau)`` is stable only
     # while ``k mu_max tau < pi/2`` (Olfati-Saber & Murray 2004; ``mu_max`` the largest Laplacian
     # eigenvalue, 6-8 in the demo graphs). ``k_p = 20`` failed at 60 ms; ``k_p = k_i = 1`` holds
-    # past 200 ms with 10% loss, at the price of a slower case 4 (6.5 s -> 7-9 s to converge).
+    # past 200 ms with 10% loss, at the price of a slower case 4 (6.5 s -> 7-9 s to converge;
+    # the case 4 scenario runs k_p = k_i = 3, sim.scenarios.CASE4_GAINS, README).
     consensus_gamma: float = 50.0
     consensus_k_p: float = 1.0
     consensus_k_i: float = 1.0
