@@ -67,6 +67,7 @@ class Gains(NamedTuple):
     w_max: float
     timeout: float
     random_tau_s: float
+    w_l_start: float
 
     @classmethod
     def of(cls, c: AgentConfig) -> Gains:
@@ -77,7 +78,7 @@ class Gains(NamedTuple):
             s.consensus_k_i, a.k_w_l_coupling, a.w_l_max_rad_s, s.p_norm, a.k_nu, a.nu_star,
             a.k_lambda, a.k_w, a.gamma, a.k_lambda0, s.e_low, s.e_high, s.converged_e_folds,
             f.k_formation, f.k_yaw, lim.v_max_m_s, lim.yaw_rate_max_rad_s, lim.peer_timeout_s,
-            a.random_tau_s,
+            a.random_tau_s, a.w_l_start_rad_s,
         )  # fmt: skip
 
 

@@ -695,7 +695,14 @@ def simulate(g, team, noise, state, trace):
                 if case4:  # bearing-constrained active perception, eq. 13-16
                     k_e[i] = convergence_gain(e_index[i], g.e_low, g.e_high)
                     dw = rotation_rate_derivative(
-                        w_l[i], n * cx[i, Q_D], lam_bar[i], k_e[i], g.k_w, g.k_lambda0, g.gamma
+                        w_l[i],
+                        n * cx[i, Q_D],
+                        lam_bar[i],
+                        k_e[i],
+                        g.k_w,
+                        g.k_lambda0,
+                        g.gamma,
+                        g.w_l_start,
                     )
                     shared = 0.0
                     for j in range(n):

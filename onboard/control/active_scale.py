@@ -39,6 +39,9 @@ GAMMA = 0.05
 K_LAMBDA0 = 2.0
 E_LOW = 1e-4
 E_HIGH = 1e-3
+W_L_SIGN = 0.02
+"""rad/s: below this ``|w_l|`` the start-up bias of :func:`rotation_rate_derivative` fades out
+(``tanh``), so its direction follows the sign of ``w_l`` smoothly."""
 LAMBDA_FLOOR = 1e-3
 """Excitations are floored here before the negative power. It bounds ``lambda^p`` (1e15), so a
 momentary loss of excitation on one edge cannot swamp the network average for long."""
@@ -154,6 +157,15 @@ def rotation_rate_derivative(
     k_w: float = K_W,
     k_l0: float = K_LAMBDA0,
     gamma: float = GAMMA,
+    w_l_start: float = 0.0,
 ) -> float:
-    """Eq. 15 with ``k_lambda = k_l0 k_E(E)``: ``w_l' = -k_w w_l + k_l gamma/(gamma + lambdabar) dlambdabar/dw_l``."""
-    return -k_w * w_l + k_l0 * k_e * gamma / (gamma + max(lam_bar, 0.0)) * dlam_dwl
+    """Eq. 15 with ``k_lambda = k_l0 k_E(E)``: ``w_l' = -k_w w_l + k_l gamma/(gamma + lambdabar) dlambdabar/dw_l``.
+
+    ``w_l_start`` (not in the paper; 0 gives eq. 15): the damping pulls ``w_l`` towards
+    ``max(2 k_E(E) - 1, 0) w_l_start tanh(w_l / W_L_SIGN)`` instead of 0 (on while the gate
+    is mostly on, ``k_E > 0.5``, as the paper's Sect. V-B reads it). ``w_l = 0`` becomes an unstable
+    equilibrium: the first push of the gradient decides the direction, and the rotation
+    reaches ``w_l_start`` within ``1 / k_w`` while the formation converges instead of after
+    the formation motion has settled; it stops with the gate ``k_E``."""
+    target = max(2.0 * k_e - 1.0, 0.0) * w_l_start * math.tanh(w_l / W_L_SIGN)
+    return -k_w * (w_l - target) + k_l0 * k_e * gamma / (gamma + max(lam_bar, 0.0)) * dlam_dwl

@@ -100,7 +100,8 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
     # network delay ``tau`` late, and a delayed consensus ``x' = -k L x(t - tau)`` is stable only
     # while ``k mu_max tau < pi/2`` (Olfati-Saber & Murray 2004; ``mu_max`` the largest Laplacian
     # eigenvalue, 6-8 in the demo graphs). ``k_p = 20`` failed at 60 ms; ``k_p = k_i = 1`` holds
-    # past 200 ms with 10% loss, at the price of a slower case 4 (6.5 s -> 7-9 s to converge).
+    # past 200 ms with 10% loss, at the price of a slower case 4 (6.5 s -> 7-9 s to converge;
+    # the case 4 scenario runs k_p = k_i = 3, sim.scenarios.CASE4_GAINS, README).
     consensus_gamma: float = 50.0
     consensus_k_p: float = 1.0
     consensus_k_i: float = 1.0
@@ -145,6 +146,10 @@ class ActiveGains(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """Gain of the coupling of ``w_l`` to the neighbours' shared values."""
     w_l_max_rad_s: float = 0.3
     """Bound of the active rotation rate ``w_l`` of eq. 13-15 (anti-windup, not in the paper)."""
+    w_l_start_rad_s: float = 0.0
+    """The damping of eq. 15 pulls ``w_l`` towards ``k_E(E)`` times this instead of 0
+    (:func:`onboard.control.active_scale.rotation_rate_derivative`): the active rotation starts
+    while the formation converges. 0: paper 000's eq. 15. Not in the paper."""
     # random-motion baseline
     random_tau_s: float = 1.0
 

@@ -150,7 +150,14 @@ class FormationActive(Formation):
         g, sc = self.active, self.scale
         self.k_e = act.convergence_gain(sc.e_index, sc.gains.e_low, sc.gains.e_high)
         dw = act.rotation_rate_derivative(
-            self.w_l, sc.dlam_dwl, sc.lambda_bar, self.k_e, g.k_w, g.k_lambda0, g.gamma
+            self.w_l,
+            sc.dlam_dwl,
+            sc.lambda_bar,
+            self.k_e,
+            g.k_w,
+            g.k_lambda0,
+            g.gamma,
+            g.w_l_start_rad_s,
         )
         shared = [x[0] for x in sc.shared("w_l", t_s) if len(x) == 1]
         dw += g.k_w_l_coupling * sum(w - self.w_l for w in shared)

@@ -142,3 +142,17 @@ def test_rotation_rate_is_damped_and_gated_by_e():
     assert rotation_rate_derivative(0.5, 3.0, 0.1, k_e=0.0) == pytest.approx(-0.5)
     assert rotation_rate_derivative(0.0, 3.0, 0.05, k_e=1.0) == pytest.approx(2.0 * 0.5 * 3.0)
     assert math.isfinite(rotation_rate_derivative(0.0, 1.0, -1.0, 1.0))
+
+
+def test_the_start_bias_makes_zero_unstable_and_fades_with_the_gate():
+    kw = {"k_w": 1.0, "k_l0": 2.0, "gamma": 0.05}
+    # no gradient, gate fully on: a small w_l of either sign is pushed away from 0 towards
+    # +-w_l_start, and w_l_start itself is an equilibrium
+    assert rotation_rate_derivative(0.01, 0.0, 0.0, 1.0, w_l_start=0.4, **kw) > 0.0
+    assert rotation_rate_derivative(-0.01, 0.0, 0.0, 1.0, w_l_start=0.4, **kw) < 0.0
+    at_start = rotation_rate_derivative(0.4, 0.0, 0.0, 1.0, w_l_start=0.4, **kw)
+    assert abs(at_start) < 1e-6
+    # gate at or below one half: paper 000's eq. 15 exactly
+    for k_e in (0.0, 0.3, 0.5):
+        paper = rotation_rate_derivative(0.2, 1.5, 0.1, k_e, **kw)
+        assert rotation_rate_derivative(0.2, 1.5, 0.1, k_e, w_l_start=0.4, **kw) == paper

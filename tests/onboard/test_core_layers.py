@@ -114,7 +114,7 @@ PAPER_DEFAULTS = {
     "sfm_bias_speed_m_s": 0.1, "sfm_folds_forget_s": 0.0, "sfm_wander_window_s": 2.0,
     "sfm_wander_max": 0.02, "chi_min_inv_m": 0.02, "k_loc_bearing": 100.0, "k_loc_distance": 1.0,
     "consensus_gamma": 50.0, "consensus_k_p": 1.0, "consensus_k_i": 1.0, "k_w_l_coupling": 2.0,
-    "w_l_max_rad_s": 0.3, "excitation_relay_every": 5, "p_norm": -5.0, "k_nu": 10.0,
+    "w_l_max_rad_s": 0.3, "w_l_start_rad_s": 0.0, "excitation_relay_every": 5, "p_norm": -5.0, "k_nu": 10.0,
     "nu_star": 0.25, "k_lambda": 15.0, "k_w": 1.0, "gamma": 0.05, "k_lambda0": 2.0,
     "e_low": 0.0001, "e_high": 0.001, "converged_e_folds": 5.0, "k_formation": 0.5, "k_yaw": 1.0,
     "random_tau_s": 1.0, "v_max_m_s": 3.0, "yaw_rate_max_rad_s": 1.5, "peer_timeout_s": 0.5,

@@ -64,6 +64,18 @@ def test_engines_agree_to_round_off(mode: str, loss: float) -> None:
         assert np.max(np.abs(b.chi_hat[-1] - b.chi_hat[1])) > 1e-3
 
 
+def test_case4_rotation_starts_with_the_formation_motion() -> None:
+    """Case 4's start bias (sim.scenarios.CASE4_GAINS; the engines agree on it above) turns
+    the team within a second, where paper 000's eq. 15 has barely started."""
+    name = "scale-formation-active"
+    paper_eq15 = {"w_l_start_rad_s": 0.0}
+    fast = run_scenario(name, seed=1, duration_s=1.0, engine="compiled")
+    paper = run_scenario(name, seed=1, duration_s=1.0, engine="compiled",
+                         config_overrides=paper_eq15)  # fmt: skip
+    assert np.min(np.abs(fast.w_l[-1])) > 0.1
+    assert np.mean(np.abs(paper.w_l[-1])) < 0.5 * np.mean(np.abs(fast.w_l[-1]))
+
+
 def test_both_engines_lose_the_same_copies() -> None:
     """With loss the runs differ from the lossless one by far more than the engines differ
     from each other: the loss changed the run, and in the same way in both (formation-active
