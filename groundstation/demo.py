@@ -665,11 +665,13 @@ def _start_recording(
     With the fleet's ``keys`` (``--secure``) its heartbeats are signed with each vehicle's key,
     as ``gcs record --keys`` signs them (system id = agent id + 1, the fleet file's default).
     Everything is closed by ``stack``, the file last."""
+    from groundstation.gcs.foxglove_scene import SceneBuilder
     from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
     from groundstation.gcs.record import Recorder
     from groundstation.gcs.zenoh_listener import ZenohListener
 
-    recorder = Recorder(path, fleet)
+    camera = SensingModel(CAMERA_FOV_DEG, CAMERA_RANGE_M)  # the demo's, for weights and frusta
+    recorder = Recorder(path, fleet, scene=SceneBuilder(camera=camera))
     stack.callback(recorder.close)
     listener = ZenohListener(session, fleet)
     listener.sample_hooks.append(recorder.zenoh_sample)
