@@ -21,9 +21,68 @@ from rich.live import Live
 from rich.markup import escape
 from rich.table import Table
 
+LANDING_ESTIMATE_S = 10.0
+"""Simulation seconds a landing from the demo's 5-6.5 m takes (for the ETA)."""
 
-def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
-    table = Table(title=f"bearingflock demo: {phase}, {elapsed_s:5.1f} / {duration_s:.0f} s")
+
+class Progress:
+    """Where the run is, for a person: the phase (take-off until every vehicle flies, mission,
+    landing), wall-clock time since the start and an ETA from the simulation speed measured so
+    far (simulation seconds per wall second)."""
+
+    def __init__(self, duration_s: float, clock=time.monotonic) -> None:
+        self.duration_s = duration_s
+        self.clock = clock
+        self.t0_wall = clock()
+        self._first: tuple[float, float] | None = None  # (wall, sim elapsed) of the first tick
+        self.rate: float | None = None
+        self._landing_from: float | None = None
+
+    def update(self, ev, elapsed_s: float, phase: str) -> tuple[str, float, float | None]:
+        """``(phase label, wall seconds so far, ETA in wall seconds or None)``."""
+        now = self.clock()
+        if phase == "mission" and not any(ev.series.flying):
+            phase = "take-off"
+        if phase != "landing" and elapsed_s > 0.0:
+            if self._first is None:
+                self._first = (now, elapsed_s)
+            elif now - self._first[0] > 1.0:
+                self.rate = (elapsed_s - self._first[1]) / (now - self._first[0])
+        eta = None
+        if self.rate is not None and self.rate > 0.0:
+            if phase == "landing":
+                if self._landing_from is None:
+                    self._landing_from = now
+                left = max(0.0, LANDING_ESTIMATE_S - (now - self._landing_from) * self.rate)
+            else:
+                left = max(0.0, self.duration_s - elapsed_s) + LANDING_ESTIMATE_S
+            eta = left / self.rate
+        return phase, now - self.t0_wall, eta
+
+
+def progress_line(ev, elapsed_s: float, phase: str, duration_s: float, wall_s: float,
+                  eta_s: float | None) -> str:  # fmt: skip
+    """One line: phase, simulation time, wall time, ETA (and, landing, how many are down)."""
+    from groundstation.demo import LANDED_HEIGHT_M
+
+    eta = "ETA --" if eta_s is None else f"ETA {_clock(eta_s)}"
+    if phase == "landing":
+        down = sum(1 for tr in list(ev.truth.values()) if tr.p_ned[2] > -LANDED_HEIGHT_M)
+        where = f"{down}/{ev.plan.n} on the ground"
+    else:
+        where = f"sim {elapsed_s:5.1f} / {duration_s:.0f} s"
+    return f"bearingflock demo: {phase}, {where}, wall {_clock(wall_s)}, {eta}"
+
+
+def _clock(s: float) -> str:
+    m, sec = divmod(round(s), 60)
+    return f"{m}:{sec:02d}"
+
+
+def _table(ev, elapsed_s: float, phase: str, duration_s: float, title: str = "") -> Table:
+    table = Table(
+        title=title or f"bearingflock demo: {phase}, {elapsed_s:5.1f} / {duration_s:.0f} s"
+    )
     for col in (
         "id",
         "phase",
@@ -40,7 +99,11 @@ def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
         table.add_column(col, justify="right")
     status = ev.snapshot()
     errors = ev.series.scale_error[-1] if ev.series.scale_error else []
-    err_by_agent = {int(i): e for (i, _), e in zip(ev.pairs, errors, strict=False)}
+    err_by_agent: dict[int, float] = {}  # both ends of a pair, the worst of its pairs
+    for (i, j), e in zip(ev.pairs, errors, strict=False):
+        for k in (int(i), int(j)):
+            if e == e:
+                err_by_agent[k] = max(e, err_by_agent.get(k, 0.0))
     for agent_id in range(ev.plan.n):
         st = status.get(agent_id)
         if st is None:
@@ -342,13 +405,16 @@ def demo(
     console = Console(stderr=json)
     live_view = console.is_terminal and not json
     last_print = [-10.0]
+    progress = Progress(duration)
 
     def on_tick(ev, elapsed_s: float, phase: str) -> None:
+        label, wall_s, eta_s = progress.update(ev, elapsed_s, phase)
+        line = progress_line(ev, elapsed_s, label, duration, wall_s, eta_s)
         if live_view:
-            live.update(_table(ev, elapsed_s, phase, duration))
-        elif elapsed_s - last_print[0] >= 5.0:
-            last_print[0] = elapsed_s
-            console.print(_table(ev, elapsed_s, phase, duration))
+            live.update(_table(ev, elapsed_s, label, duration, title=line))
+        elif wall_s - last_print[0] >= 5.0:  # no terminal: one line every 5 s, not a table
+            last_print[0] = wall_s
+            console.print(line, soft_wrap=True)
 
     try:
         with (
