@@ -157,7 +157,36 @@ CPU_BUDGET = 0.6
 setpoints hundreds of milliseconds old made the constrained active case drift."""
 
 
-def default_speedup(vehicles: int, cores: int) -> float:
+IDLE_SAMPLE_S = 0.5
+"""Wall seconds over which the demo measures how much of the machine is idle."""
+
+
+def _cpu_times() -> tuple[int, int] | None:
+    """``(idle, total)`` jiffies of all CPUs (Linux ``/proc/stat``; ``None`` elsewhere)."""
+    try:
+        with open("/proc/stat") as f:
+            fields = [int(x) for x in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    if len(fields) < 4:
+        return None
+    return fields[3] + (fields[4] if len(fields) > 4 else 0), sum(fields[:8])
+
+
+def idle_cores(cores: int, sample_s: float = IDLE_SAMPLE_S) -> float | None:
+    """How many of ``cores`` were idle over the next ``sample_s`` (the machine's idle share of
+    ``/proc/stat``); ``None`` where it cannot be measured."""
+    first = _cpu_times()
+    if first is None:
+        return None
+    time.sleep(sample_s)
+    second = _cpu_times()
+    if second is None or second[1] <= first[1]:
+        return None
+    return cores * max(0.0, min(1.0, (second[0] - first[0]) / (second[1] - first[1])))
+
+
+def default_speedup(vehicles: int, cores: float) -> float:
     """The simulation speed at which ``vehicles`` daemons and the simulator fit ``CPU_BUDGET`` of
     ``cores`` (at most real time), rounded down to 0.05."""
     need = CPU_PER_AGENT * vehicles + CPU_SIMULATOR
@@ -371,18 +400,22 @@ def demo(
         _headless(vehicles, seed, duration, mode, loss, json, rigidity, out_dir)
         return
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    auto = default_speedup(vehicles, cores or 1)
+    cores = cores or 1
+    idle = idle_cores(cores) if speedup is None else None  # a short measurement of the machine
+    auto = default_speedup(vehicles, cores if idle is None else max(idle, 0.5))
     if bearings == "camera":
         auto = min(auto, CAMERA_SPEEDUP)
     speed = speedup if speedup is not None else auto
     if not speed >= MIN_SPEEDUP:
         typer.echo(f"error: --speedup must be >= {MIN_SPEEDUP:g}", err=True)
         raise typer.Exit(2)
-    if speedup is None and speed < 1.0 and not json:
+    if speedup is None and not json:
+        idle_txt = "" if idle is None else f", {idle:.1f} of them idle just now"
         Console(stderr=True).print(
             f"[dim]simulation at {speed:g}x real time: {vehicles} daemons and the simulator need "
-            f"about {CPU_PER_AGENT * vehicles + CPU_SIMULATOR:.1f} cores, this machine has "
-            f"{cores} (--speedup 1 to force real time)[/dim]"
+            f"about {CPU_PER_AGENT * vehicles + CPU_SIMULATOR:.1f} cores at 1x, this machine has "
+            f"{cores}{idle_txt} (--speedup to choose; the verdict says DEGRADED if ticks ran "
+            "late)[/dim]"
         )
     if not render_rate > 0.0:
         typer.echo("error: --render-rate must be > 0", err=True)

@@ -36,3 +36,17 @@ def test_phases_wall_time_and_eta_at_the_measured_speed():
     assert prog.update(ev, 60.0, "landing")[2] == 0.0
     ev.truth = {0: SimpleNamespace(p_ned=(0, 0, -0.05)), 1: SimpleNamespace(p_ned=(0, 0, -3.0))}
     assert "1/3 on the ground" in progress_line(ev, 60.0, "landing", 60.0, 41.0, 0.0)
+
+
+def test_the_speed_comes_from_the_idle_share_measured_on_this_machine(monkeypatch):
+    import groundstation.demo_cli as cli
+
+    readings = iter([(1000, 4000), (1150, 4200)])  # 150 of 200 jiffies idle: 75%
+    monkeypatch.setattr(cli, "_cpu_times", lambda: next(readings))
+    assert cli.idle_cores(2, sample_s=0.0) == 1.5
+    assert cli.default_speedup(6, 1.5) < cli.default_speedup(6, 2)  # a busy machine: slower
+    monkeypatch.setattr(cli, "_cpu_times", lambda: None)
+    assert cli.idle_cores(2, sample_s=0.0) is None  # not Linux: the cores alone decide
+    monkeypatch.undo()
+    idle = cli.idle_cores(2, sample_s=0.05)
+    assert idle is None or 0.0 <= idle <= 2.0
