@@ -12,6 +12,7 @@ import math
 import os
 import sys
 import time
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -20,6 +21,16 @@ from rich.console import Console
 from rich.live import Live
 from rich.markup import escape
 from rich.table import Table
+
+
+class DemoPhase(StrEnum):
+    """The demo's own phases for the person watching (run_demo's ``on_tick`` says ``mission``
+    or ``landing``; :class:`Progress` splits take-off off the mission)."""
+
+    TAKEOFF = "take-off"
+    MISSION = "mission"
+    LANDING = "landing"
+
 
 LANDING_ESTIMATE_S = 10.0
 """Simulation seconds a landing from the demo's 5-6.5 m takes (for the ETA)."""
@@ -41,16 +52,16 @@ class Progress:
     def update(self, ev, elapsed_s: float, phase: str) -> tuple[str, float, float | None]:
         """``(phase label, wall seconds so far, ETA in wall seconds or None)``."""
         now = self.clock()
-        if phase == "mission" and not any(ev.series.flying):
-            phase = "take-off"
-        if phase != "landing" and elapsed_s > 0.0:
+        if phase == DemoPhase.MISSION and not any(ev.series.flying):
+            phase = DemoPhase.TAKEOFF.value
+        if phase != DemoPhase.LANDING and elapsed_s > 0.0:
             if self._first is None:
                 self._first = (now, elapsed_s)
             elif now - self._first[0] > 1.0:
                 self.rate = (elapsed_s - self._first[1]) / (now - self._first[0])
         eta = None
         if self.rate is not None and self.rate > 0.0:
-            if phase == "landing":
+            if phase == DemoPhase.LANDING:
                 if self._landing_from is None:
                     self._landing_from = now
                 left = max(0.0, LANDING_ESTIMATE_S - (now - self._landing_from) * self.rate)
@@ -66,7 +77,7 @@ def progress_line(ev, elapsed_s: float, phase: str, duration_s: float, wall_s: f
     from groundstation.demo import LANDED_HEIGHT_M
 
     eta = "ETA --" if eta_s is None else f"ETA {_clock(eta_s)}"
-    if phase == "landing":
+    if phase == DemoPhase.LANDING:
         down = sum(1 for tr in list(ev.truth.values()) if tr.p_ned[2] > -LANDED_HEIGHT_M)
         where = f"{down}/{ev.plan.n} on the ground"
     else:
