@@ -33,7 +33,7 @@ from messages.command import COMMAND_TOPIC, FleetCommand
 from messages.keys import key
 from messages.sim import Truth
 from messages.transport import TransportError, ZenohSettings, loopback_endpoint, open_session
-from messages.vocabulary import Phase
+from messages.vocabulary import Alarm, Phase
 from onboard.daemon.config import MIN_MAINTENANCE_AGENTS
 from onboard.geometry import FloatArray, IntArray, bearings_body
 from onboard.graph import complete_graph, normalize_edges, reciprocal_pairs
@@ -253,6 +253,9 @@ class Evaluator:
         self.bad_samples = 0
         self.alarms_seen: dict[str, set[int]] = {}
         """Every alarm any daemon reported during the run, with the vehicles that did."""
+        self.late_ticks: set[int] = set()
+        """Vehicles whose daemon reported ``ticks_late`` after connecting (onboard/daemon/
+        lateness.py): the machine was too slow for the speed, the run is degraded."""
         self.series = Series()
         self._subs = [
             self.session.declare_subscriber(f"bf/{fleet}/*/status", self._on_status),
@@ -269,6 +272,8 @@ class Evaluator:
             self.status[msg.sender] = msg
             for alarm in msg.alarms:
                 self.alarms_seen.setdefault(alarm, set()).add(msg.sender)
+            if Alarm.TICKS_LATE in msg.alarms and msg.phase != Phase.CONNECTING:
+                self.late_ticks.add(msg.sender)
 
     def _on_truth(self, sample: Any) -> None:
         try:
@@ -345,9 +350,11 @@ class Evaluator:
 
 
 def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
-    """The demo's summary: time to metric scale, final errors, rigidity, dropped messages, and
+    """The demo's summary: time to metric scale, final errors, rigidity, dropped messages,
     every alarm a daemon raised (``{alarm: [vehicles]}``; e.g. ``altitude_floor`` while a vehicle
-    climbs to the envelope after take-off)."""
+    climbs to the envelope after take-off), and ``degraded`` when a daemon's ticks ran late
+    (``late_tick_vehicles``: the machine was too slow for the speed, so the numbers are worse
+    than the method's)."""
     s = ev.series
     t = np.array(s.t_s)
     err = np.array(s.scale_error) if s.scale_error else np.zeros((0, len(ev.pairs)))
@@ -375,7 +382,7 @@ def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
     dropped = sum(by_reason.values())
     eig = np.array(s.rigidity_eigenvalue)[flying] if flying.any() else np.array([])
     lam = np.array(s.angle_eigenvalue)
-    lam_hat = np.array(s.angle_eigenvalue_hat).reshape(len(lam), -1)
+    lam_hat = np.array(s.angle_eigenvalue_hat).reshape(len(lam), -1 if len(lam) else vehicles)
     final_lam_error = None
     if tail.any() and np.isfinite(lam_hat[tail]).any():
         rel = np.abs(lam_hat[tail] - lam[tail, None]) / lam[tail, None]
@@ -396,6 +403,8 @@ def summarize(ev: Evaluator, vehicles: int) -> dict[str, Any]:
         "mission_start_s": start,
         "reciprocal_pairs": ev.pairs.tolist(),
         "alarms_seen": {a: sorted(ids) for a, ids in sorted(ev.alarms_seen.items())},
+        "degraded": bool(ev.late_ticks),
+        "late_tick_vehicles": sorted(ev.late_ticks),
     }
 
 
@@ -665,11 +674,13 @@ def _start_recording(
     With the fleet's ``keys`` (``--secure``) its heartbeats are signed with each vehicle's key,
     as ``gcs record --keys`` signs them (system id = agent id + 1, the fleet file's default).
     Everything is closed by ``stack``, the file last."""
+    from groundstation.gcs.foxglove_scene import SceneBuilder
     from groundstation.gcs.mavlink_listener import MavlinkListener, parse_endpoint
     from groundstation.gcs.record import Recorder
     from groundstation.gcs.zenoh_listener import ZenohListener
 
-    recorder = Recorder(path, fleet)
+    camera = SensingModel(CAMERA_FOV_DEG, CAMERA_RANGE_M)  # the demo's, for weights and frusta
+    recorder = Recorder(path, fleet, scene=SceneBuilder(camera=camera))
     stack.callback(recorder.close)
     listener = ZenohListener(session, fleet)
     listener.sample_hooks.append(recorder.zenoh_sample)

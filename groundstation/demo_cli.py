@@ -12,6 +12,7 @@ import math
 import os
 import sys
 import time
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -22,8 +23,77 @@ from rich.markup import escape
 from rich.table import Table
 
 
-def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
-    table = Table(title=f"bearingflock demo: {phase}, {elapsed_s:5.1f} / {duration_s:.0f} s")
+class DemoPhase(StrEnum):
+    """The demo's own phases for the person watching (run_demo's ``on_tick`` says ``mission``
+    or ``landing``; :class:`Progress` splits take-off off the mission)."""
+
+    TAKEOFF = "take-off"
+    MISSION = "mission"
+    LANDING = "landing"
+
+
+LANDING_ESTIMATE_S = 10.0
+"""Simulation seconds a landing from the demo's 5-6.5 m takes (for the ETA)."""
+
+
+class Progress:
+    """Where the run is, for a person: the phase (take-off until every vehicle flies, mission,
+    landing), wall-clock time since the start and an ETA from the simulation speed measured so
+    far (simulation seconds per wall second)."""
+
+    def __init__(self, duration_s: float, clock=time.monotonic) -> None:
+        self.duration_s = duration_s
+        self.clock = clock
+        self.t0_wall = clock()
+        self._first: tuple[float, float] | None = None  # (wall, sim elapsed) of the first tick
+        self.rate: float | None = None
+        self._landing_from: float | None = None
+
+    def update(self, ev, elapsed_s: float, phase: str) -> tuple[str, float, float | None]:
+        """``(phase label, wall seconds so far, ETA in wall seconds or None)``."""
+        now = self.clock()
+        if phase == DemoPhase.MISSION and not any(ev.series.flying):
+            phase = DemoPhase.TAKEOFF.value
+        if phase != DemoPhase.LANDING and elapsed_s > 0.0:
+            if self._first is None:
+                self._first = (now, elapsed_s)
+            elif now - self._first[0] > 1.0:
+                self.rate = (elapsed_s - self._first[1]) / (now - self._first[0])
+        eta = None
+        if self.rate is not None and self.rate > 0.0:
+            if phase == DemoPhase.LANDING:
+                if self._landing_from is None:
+                    self._landing_from = now
+                left = max(0.0, LANDING_ESTIMATE_S - (now - self._landing_from) * self.rate)
+            else:
+                left = max(0.0, self.duration_s - elapsed_s) + LANDING_ESTIMATE_S
+            eta = left / self.rate
+        return phase, now - self.t0_wall, eta
+
+
+def progress_line(ev, elapsed_s: float, phase: str, duration_s: float, wall_s: float,
+                  eta_s: float | None) -> str:  # fmt: skip
+    """One line: phase, simulation time, wall time, ETA (and, landing, how many are down)."""
+    from groundstation.demo import LANDED_HEIGHT_M
+
+    eta = "ETA --" if eta_s is None else f"ETA {_clock(eta_s)}"
+    if phase == DemoPhase.LANDING:
+        down = sum(1 for tr in list(ev.truth.values()) if tr.p_ned[2] > -LANDED_HEIGHT_M)
+        where = f"{down}/{ev.plan.n} on the ground"
+    else:
+        where = f"sim {elapsed_s:5.1f} / {duration_s:.0f} s"
+    return f"bearingflock demo: {phase}, {where}, wall {_clock(wall_s)}, {eta}"
+
+
+def _clock(s: float) -> str:
+    m, sec = divmod(round(s), 60)
+    return f"{m}:{sec:02d}"
+
+
+def _table(ev, elapsed_s: float, phase: str, duration_s: float, title: str = "") -> Table:
+    table = Table(
+        title=title or f"bearingflock demo: {phase}, {elapsed_s:5.1f} / {duration_s:.0f} s"
+    )
     for col in (
         "id",
         "phase",
@@ -40,7 +110,11 @@ def _table(ev, elapsed_s: float, phase: str, duration_s: float) -> Table:
         table.add_column(col, justify="right")
     status = ev.snapshot()
     errors = ev.series.scale_error[-1] if ev.series.scale_error else []
-    err_by_agent = {int(i): e for (i, _), e in zip(ev.pairs, errors, strict=False)}
+    err_by_agent: dict[int, float] = {}  # both ends of a pair, the worst of its pairs
+    for (i, j), e in zip(ev.pairs, errors, strict=False):
+        for k in (int(i), int(j)):
+            if e == e:
+                err_by_agent[k] = max(e, err_by_agent.get(k, 0.0))
     for agent_id in range(ev.plan.n):
         st = status.get(agent_id)
         if st is None:
@@ -94,7 +168,36 @@ CPU_BUDGET = 0.6
 setpoints hundreds of milliseconds old made the constrained active case drift."""
 
 
-def default_speedup(vehicles: int, cores: int) -> float:
+IDLE_SAMPLE_S = 0.5
+"""Wall seconds over which the demo measures how much of the machine is idle."""
+
+
+def _cpu_times() -> tuple[int, int] | None:
+    """``(idle, total)`` jiffies of all CPUs (Linux ``/proc/stat``; ``None`` elsewhere)."""
+    try:
+        with open("/proc/stat") as f:
+            fields = [int(x) for x in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    if len(fields) < 4:
+        return None
+    return fields[3] + (fields[4] if len(fields) > 4 else 0), sum(fields[:8])
+
+
+def idle_cores(cores: int, sample_s: float = IDLE_SAMPLE_S) -> float | None:
+    """How many of ``cores`` were idle over the next ``sample_s`` (the machine's idle share of
+    ``/proc/stat``); ``None`` where it cannot be measured."""
+    first = _cpu_times()
+    if first is None:
+        return None
+    time.sleep(sample_s)
+    second = _cpu_times()
+    if second is None or second[1] <= first[1]:
+        return None
+    return cores * max(0.0, min(1.0, (second[0] - first[0]) / (second[1] - first[1])))
+
+
+def default_speedup(vehicles: int, cores: float) -> float:
     """The simulation speed at which ``vehicles`` daemons and the simulator fit ``CPU_BUDGET`` of
     ``cores`` (at most real time), rounded down to 0.05."""
     need = CPU_PER_AGENT * vehicles + CPU_SIMULATOR
@@ -308,18 +411,22 @@ def demo(
         _headless(vehicles, seed, duration, mode, loss, json, rigidity, out_dir)
         return
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    auto = default_speedup(vehicles, cores or 1)
+    cores = cores or 1
+    idle = idle_cores(cores) if speedup is None else None  # a short measurement of the machine
+    auto = default_speedup(vehicles, cores if idle is None else max(idle, 0.5))
     if bearings == "camera":
         auto = min(auto, CAMERA_SPEEDUP)
     speed = speedup if speedup is not None else auto
     if not speed >= MIN_SPEEDUP:
         typer.echo(f"error: --speedup must be >= {MIN_SPEEDUP:g}", err=True)
         raise typer.Exit(2)
-    if speedup is None and speed < 1.0 and not json:
+    if speedup is None and not json:
+        idle_txt = "" if idle is None else f", {idle:.1f} of them idle just now"
         Console(stderr=True).print(
             f"[dim]simulation at {speed:g}x real time: {vehicles} daemons and the simulator need "
-            f"about {CPU_PER_AGENT * vehicles + CPU_SIMULATOR:.1f} cores, this machine has "
-            f"{cores} (--speedup 1 to force real time)[/dim]"
+            f"about {CPU_PER_AGENT * vehicles + CPU_SIMULATOR:.1f} cores at 1x, this machine has "
+            f"{cores}{idle_txt} (--speedup to choose; the verdict says DEGRADED if ticks ran "
+            "late)[/dim]"
         )
     if not render_rate > 0.0:
         typer.echo("error: --render-rate must be > 0", err=True)
@@ -342,13 +449,16 @@ def demo(
     console = Console(stderr=json)
     live_view = console.is_terminal and not json
     last_print = [-10.0]
+    progress = Progress(duration)
 
     def on_tick(ev, elapsed_s: float, phase: str) -> None:
+        label, wall_s, eta_s = progress.update(ev, elapsed_s, phase)
+        line = progress_line(ev, elapsed_s, label, duration, wall_s, eta_s)
         if live_view:
-            live.update(_table(ev, elapsed_s, phase, duration))
-        elif elapsed_s - last_print[0] >= 5.0:
-            last_print[0] = elapsed_s
-            console.print(_table(ev, elapsed_s, phase, duration))
+            live.update(_table(ev, elapsed_s, label, duration, title=line))
+        elif wall_s - last_print[0] >= 5.0:  # no terminal: one line every 5 s, not a table
+            last_print[0] = wall_s
+            console.print(line, soft_wrap=True)
 
     try:
         with (

@@ -19,9 +19,17 @@ class Verdict:
     line: str
     failed: list[str] = field(default_factory=list)
     """The criteria that were not met, in words."""
+    degraded: bool = False
+    """A daemon's core ticks ran late (summary ``degraded``): the numbers are this machine's
+    at this speed, not the method's."""
 
     def as_json(self) -> dict[str, Any]:
-        return {"pass": self.passed, "line": self.line, "failed": list(self.failed)}
+        return {
+            "pass": self.passed,
+            "line": self.line,
+            "failed": list(self.failed),
+            "degraded": self.degraded,
+        }
 
 
 def _pct(x: float) -> str:
@@ -38,7 +46,8 @@ BEARING_LIMIT = f"{BEARING_CRITERION_DEG:g} deg"
 
 def demo_verdict(summary: dict[str, Any], out: str | None = None) -> Verdict:
     """PASS when the scale became metric (every pair within 2% and staying so), ended within 2%,
-    the formation ended within 3 degrees, and (when the summary says) every vehicle landed."""
+    the formation ended within 3 degrees, and (when the summary says) every vehicle landed;
+    DEGRADED added when a daemon's ticks ran late (the verdict still judges the numbers)."""
     failed: list[str] = []
     parts: list[str] = []
     tts = summary.get("time_to_scale_s")
@@ -72,5 +81,14 @@ def demo_verdict(summary: dict[str, Any], out: str | None = None) -> Verdict:
             parts.append("NOT all landed")
     passed = not failed
     head = "PASS" if passed else "FAIL (" + "; ".join(failed) + ")"
+    degraded = bool(summary.get("degraded"))
+    if degraded:
+        late = ", ".join(str(i) for i in summary.get("late_tick_vehicles", []))
+        speed = summary.get("speedup")
+        at = f" at {speed:g}x" if isinstance(speed, (int, float)) else ""
+        head += (
+            f" DEGRADED (core ticks ran late on vehicle(s) {late}{at}: this machine was too "
+            "slow for the speed, try a lower --speedup)"
+        )
     tail = f"; plots and recording in {out}" if out else ""
-    return Verdict(passed, f"{head}: " + ", ".join(parts) + tail, failed)
+    return Verdict(passed, f"{head}: " + ", ".join(parts) + tail, failed, degraded)

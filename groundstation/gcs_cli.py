@@ -3,6 +3,7 @@
 * ``monitor`` — live full-screen table of every vehicle (``--once --json``: one snapshot);
 * ``arm | takeoff | land`` (autopilots, MAVLink), ``start | hold`` (agents, Zenoh), ``stop``
   (both: the emergency action) — to ``--ids 1,3`` or ``--all``, confirmed unless ``--yes``;
+* ``view`` — the team's 3D scene live to Foxglove over its WebSocket protocol;
 * ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``;
 * ``estimate [--duration S] [--json]`` — paper 001's centralized EKF live over Zenoh beside the
   daemons' estimates (``--replay IN.mcap``: on a recording).
@@ -33,7 +34,7 @@ DEFAULT_ZENOH = "tcp/127.0.0.1:7447"
 
 gcs_app = typer.Typer(
     name="gcs",
-    help="Ground station: monitor, fleet commands, record, replay, plot.",
+    help="Ground station: monitor, fleet commands, view, record, replay, plot.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -42,7 +43,7 @@ gcs_app = typer.Typer(
 
 @gcs_app.callback()
 def _gcs() -> None:
-    """Ground station: monitor, fleet commands, record, replay, plot."""
+    """Ground station: monitor, fleet commands, view, record, replay, plot."""
 
 
 # --- shared options ---------------------------------------------------------------------------------
@@ -423,6 +424,71 @@ _make_command(
     "stop",
     "EMERGENCY: LAND to every selected autopilot and stop to every agent (default: all).",
 )
+
+
+# --- view ------------------------------------------------------------------------------------------
+@gcs_app.command("view")
+def view(
+    fleet: FleetOpt = "alpha",
+    zenoh: ZenohOpt = None,
+    zenoh_listen: ZenohListenOpt = None,
+    host: Annotated[
+        str, typer.Option("--host", help="Address the Foxglove WebSocket server binds to.")
+    ] = "127.0.0.1",
+    port: Annotated[
+        int, typer.Option("--port", min=0, max=65535, help="Its port (0: a free one).")
+    ] = 8765,
+    fov_deg: Annotated[
+        float, typer.Option("--fov-deg", help="The vehicles' camera field of view (deg).")
+    ] = 120.0,
+    range_m: Annotated[
+        float, typer.Option("--range-m", help="The vehicles' sensing range (m).")
+    ] = 15.0,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Stop after this many seconds.")
+    ] = None,
+    keys: KeysOpt = None,
+) -> None:
+    """Serve the team live to Foxglove (WebSocket): poses, estimates, edges, frusta, alarms."""
+    from messages.optional import require
+
+    require("foxglove")
+    from groundstation.gcs.foxglove_scene import SceneBuilder
+    from groundstation.gcs.view import LiveView
+    from onboard.rigidity.weights import SensingModel
+
+    _check_fleet(fleet)
+    if duration is not None and not (math.isfinite(duration) and duration > 0.0):
+        raise _fail(f"--duration must be a finite number of seconds > 0, got {duration}")
+    try:
+        camera = SensingModel(fov_deg, range_m)
+    except ValueError as exc:
+        raise _fail(f"--fov-deg/--range-m: {exc}") from None
+    with ExitStack() as stack:
+        stop = stack.enter_context(_sigterm_event())
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
+        if session is None:
+            raise _fail("gcs view draws what it hears on Zenoh: --zenoh none leaves nothing")
+        try:
+            live = LiveView(fleet, SceneBuilder(camera=camera), host, port).start()
+        except Exception as exc:  # the SDK raises its own error type for a taken port
+            raise _fail(f"cannot serve on {host}:{port}: {exc}") from None
+        stack.callback(live.close)
+        zen = _zenoh_listener(stack, session, fleet)
+        zen.sample_hooks.append(live.zenoh_sample)
+        typer.echo(
+            f"serving fleet {fleet!r} to Foxglove on ws://{host}:{live.port} "
+            "(Foxglove: Open connection, Foxglove WebSocket); Ctrl-C to stop",
+            err=True,
+        )
+        t_end = None if duration is None else time.monotonic() + duration
+        try:
+            while not stop.wait(0.2):
+                if t_end is not None and time.monotonic() >= t_end:
+                    break
+        except KeyboardInterrupt:
+            pass
+        zen.close()  # the hooks stop before the server does
 
 
 # --- record / replay / plot ----------------------------------------------------------------------------

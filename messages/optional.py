@@ -19,6 +19,7 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "numba": ("sim", "the compiled team engine of the headless runner"),
     "llvmlite": ("sim", "the compiled team engine of the headless runner"),
     "mcap": ("sim", "flight recordings (MCAP)"),
+    "foxglove": ("sim", "the live 3D view (gcs view, Foxglove WebSocket)"),
     "pyarrow": ("sim", "sweep results (Parquet)"),
     "casadi": ("planner", "the landmark planner (IPOPT)"),
     "nlopt": ("planner", "the landmark planner's ISRES baseline"),

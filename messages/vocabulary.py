@@ -96,6 +96,9 @@ class Alarm(StrEnum):
     """Agent: a simulation or autopilot time implausibly far from its own was rejected."""
     CLOCK_RESYNC = "clock_resync"
     """Agent: it followed a new timeline (a restarted simulator) after consistent samples."""
+    TICKS_LATE = "ticks_late"
+    """Agent: its core ticks ran late for over a quarter of the last 2 s (the machine is too
+    slow for the simulation speed; onboard/daemon/lateness.py): its estimates degrade."""
     HEARTBEAT_LOST = "heartbeat_lost"
     """Ground station: no autopilot heartbeat within its limit."""
     BATTERY_LOW = "battery_low"

@@ -13,8 +13,13 @@ names, types and nesting as Foxglove's published ones):
   best similarity that maps them onto it (``similarity.similarity_2d``, Umeyama 1991); without
   truth they are drawn as estimated.
 * :data:`SCENE_TOPIC` (``foxglove.SceneUpdate``): a sphere and a label per vehicle (truth: blue,
-  estimate: orange) and the sensing edges, one line per camera detection ``i -> j`` seen in the
-  last :data:`EDGE_MAX_AGE_S` (green when both ends see each other, grey when only one does).
+  estimate: orange; the label names the vehicle's active alarms and turns red with them), each
+  vehicle's camera frustum (its sensing model's cone, :data:`FRUSTUM_LENGTH_M` long; a ring for
+  an all-round camera), and the sensing edges, one line per camera detection ``i -> j`` seen in
+  the last :data:`EDGE_MAX_AGE_S`, coloured by its rigidity weight ``w_ij = w_range w_fov``
+  (paper 003 eq. 17-18, :func:`onboard.rigidity.weights.edge_weights` on the drawn poses): green
+  at 1, yellow at 0.5, red at 0 (about to be lost); opaque when both ends see each other, faint
+  when only one does.
 
 :class:`SceneBuilder` is pure: fold payloads in with :meth:`SceneBuilder.add`, take both messages
 with :meth:`SceneBuilder.messages` (at most every ``period_s`` of log time).
@@ -33,6 +38,8 @@ from groundstation.gcs.similarity import similarity_2d
 from messages.agent import VehicleStatus
 from messages.codec import Payload
 from messages.sim import CameraBearings, Truth
+from onboard.daemon.config import RigiditySection
+from onboard.rigidity.weights import SensingModel, edge_weights
 
 TRANSFORMS_TOPIC = "scene/transforms"
 SCENE_TOPIC = "scene/team"
@@ -48,8 +55,21 @@ NED_IN_ENU = {"x": _SQRT_HALF, "y": _SQRT_HALF, "z": 0.0, "w": 0.0}
 
 TRUTH_COLOR = {"r": 0.2, "g": 0.5, "b": 1.0, "a": 1.0}
 ESTIMATE_COLOR = {"r": 1.0, "g": 0.6, "b": 0.1, "a": 0.9}
-EDGE_BOTH_COLOR = {"r": 0.2, "g": 0.9, "b": 0.3, "a": 0.9}
-EDGE_ONE_COLOR = {"r": 0.6, "g": 0.6, "b": 0.6, "a": 0.7}
+ALARM_COLOR = {"r": 1.0, "g": 0.15, "b": 0.1, "a": 1.0}
+FRUSTUM_COLOR = {"r": 0.5, "g": 0.8, "b": 1.0, "a": 0.5}
+EDGE_BOTH_ALPHA = 0.95
+EDGE_ONE_ALPHA = 0.4
+FRUSTUM_LENGTH_M = 2.0
+"""Drawn length of a camera frustum (its range, often tens of metres, would hide the team)."""
+FRUSTUM_RAYS = 8
+DEFAULT_CAMERA = SensingModel(RigiditySection().fov_deg, RigiditySection().range_m)
+"""The daemons' default sensing model (fleet file ``[rigidity] fov_deg, range_m``)."""
+
+
+def weight_color(w: float, alpha: float) -> dict[str, float]:
+    """Red at rigidity weight 0, yellow at 0.5, green at 1."""
+    w = min(1.0, max(0.0, w))
+    return {"r": min(1.0, 2.0 * (1.0 - w)), "g": min(1.0, 2.0 * w), "b": 0.1, "a": alpha}
 
 
 # --- JSON Schemas (Foxglove's names and layout, fields used here) ---------------------------------
@@ -210,8 +230,12 @@ class SceneBuilder:
     messages (see the module doc)."""
 
     period_s: float = SCENE_PERIOD_S
+    camera: SensingModel = DEFAULT_CAMERA
+    """The vehicles' sensing model: edge weights and frusta."""
     truth: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)
     estimate: dict[int, tuple[np.ndarray, float]] = field(default_factory=dict)
+    alarms: dict[int, list[str]] = field(default_factory=dict)
+    """Each vehicle's active alarms, from its latest status."""
     detections: dict[tuple[int, int], int] = field(default_factory=dict)
     """Log time (ns) of the latest camera detection of ``j`` by ``i``, by ``(i, j)``."""
     _last_ns: int | None = None
@@ -223,6 +247,7 @@ class SceneBuilder:
         elif isinstance(payload, VehicleStatus):
             a = payload.agent
             self.estimate[payload.sender] = (np.array(a.p_hat_ned, dtype=float), a.yaw_hat_rad)
+            self.alarms[payload.sender] = list(payload.alarms)
         elif isinstance(payload, CameraBearings):
             for j in payload.targets:
                 self.detections[(payload.sender, int(j))] = t_ns
@@ -246,20 +271,39 @@ class SceneBuilder:
             for i, (p, yaw) in sorted(poses.items()):
                 frame = f"{kind}/{i}"
                 tfs.append(_transform(t_ns, NED_FRAME, frame, p, yaw_quaternion(yaw)))
-                entities.append(_vehicle_entity(t_ns, frame, f"{kind} {i}", color))
-        entities.append(self._edges_entity(t_ns))
+                alarms = self.alarms.get(i, []) if kind == "estimate" else []
+                label = f"{kind} {i}" + (": " + " ".join(alarms) if alarms else "")
+                entities.append(
+                    _vehicle_entity(t_ns, frame, f"{kind} {i}", label, color, bool(alarms))
+                )
+        sensed = "truth" if self.truth else "estimate"
+        for i in sorted(self.truth or shown):
+            entities.append(_frustum_entity(t_ns, f"{sensed}/{i}", f"frustum {i}", self.camera))
+        entities.append(self._edges_entity(t_ns, self.truth or shown))
         return {"transforms": tfs}, {"deletions": [], "entities": entities}
 
-    def _edges_entity(self, t_ns: int) -> dict:
+    def edge_weights(
+        self, edges: list[tuple[int, int]], where: dict[int, tuple[np.ndarray, float]]
+    ) -> np.ndarray:
+        """Rigidity weight of each edge ``(i, j)`` at the poses ``where`` (paper 003 eq. 18)."""
+        if not edges:
+            return np.zeros(0)
+        ids = sorted(where)
+        index = {v: k for k, v in enumerate(ids)}
+        p = np.array([where[v][0] for v in ids])
+        yaw = np.array([where[v][1] for v in ids])
+        e = np.array([(index[i], index[j]) for i, j in edges])
+        return edge_weights(p, yaw, e, self.camera).w
+
+    def _edges_entity(self, t_ns: int, where: dict[int, tuple[np.ndarray, float]]) -> dict:
         fresh = {e for e, t in self.detections.items() if t_ns - t <= EDGE_MAX_AGE_S * 1e9}
-        where = self.truth or self.estimate
+        drawn = [(i, j) for i, j in sorted(fresh) if i in where and j in where]
         points, colors = [], []
-        for i, j in sorted(fresh):
-            if i not in where or j not in where:
-                continue
+        for (i, j), w in zip(drawn, self.edge_weights(drawn, where), strict=True):
             for p in (where[i][0], where[j][0]):
                 points.append({"x": float(p[0]), "y": float(p[1]), "z": float(p[2])})
-            color = EDGE_BOTH_COLOR if (j, i) in fresh else EDGE_ONE_COLOR
+            alpha = EDGE_BOTH_ALPHA if (j, i) in fresh else EDGE_ONE_ALPHA
+            color = weight_color(float(w), alpha)
             colors += [color, color]
         line = {
             "type": 2,
@@ -267,7 +311,7 @@ class SceneBuilder:
             "thickness": 3.0,
             "scale_invariant": True,
             "points": points,
-            "color": EDGE_ONE_COLOR,
+            "color": weight_color(0.0, EDGE_ONE_ALPHA),
             "colors": colors,
             "indices": [],
         }
@@ -285,17 +329,53 @@ def _entity(t_ns: int, frame: str, ident: str, **prims: list) -> dict:
     }
 
 
-def _vehicle_entity(t_ns: int, frame: str, label: str, color: dict) -> dict:
+def _vehicle_entity(
+    t_ns: int, frame: str, ident: str, label: str, color: dict, alarmed: bool = False
+) -> dict:
     sphere = {"pose": _IDENTITY_POSE, "size": {"x": 0.6, "y": 0.6, "z": 0.6}, "color": color}
     text = {
         "pose": {"position": {"x": 0.0, "y": 0.0, "z": -0.8}, "orientation": _QUAT_ID},
         "billboard": True,
         "font_size": 14.0,
         "scale_invariant": True,
-        "color": color,
+        "color": ALARM_COLOR if alarmed else color,
         "text": label,
     }
-    return _entity(t_ns, frame, label, spheres=[sphere], texts=[text])
+    return _entity(t_ns, frame, ident, spheres=[sphere], texts=[text])
+
+
+def frustum_points_body(camera: SensingModel, length_m: float = FRUSTUM_LENGTH_M) -> list[dict]:
+    """Line-list points of a camera's cone in the body frame (FRD, camera along body x):
+    :data:`FRUSTUM_RAYS` rays at the half field of view and the ring joining their tips; for an
+    all-round camera, the horizontal ring of radius ``length_m``."""
+    phis = 2.0 * np.pi * np.arange(FRUSTUM_RAYS) / FRUSTUM_RAYS
+    if camera.all_round:
+        tips = [(length_m * math.cos(a), length_m * math.sin(a), 0.0) for a in phis]
+        rays: list[tuple[float, float, float]] = []
+    else:
+        h = math.radians(camera.fov_deg) / 2.0
+        tips = [
+            (length_m * math.cos(h), length_m * math.sin(h) * math.cos(a),
+             length_m * math.sin(h) * math.sin(a))
+            for a in phis
+        ]  # fmt: skip
+        rays = [x for tip in tips for x in ((0.0, 0.0, 0.0), tip)]
+    ring = [x for k in range(len(tips)) for x in (tips[k], tips[(k + 1) % len(tips)])]
+    return [{"x": x, "y": y, "z": z} for x, y, z in rays + ring]
+
+
+def _frustum_entity(t_ns: int, frame: str, ident: str, camera: SensingModel) -> dict:
+    line = {
+        "type": 2,
+        "pose": _IDENTITY_POSE,
+        "thickness": 1.5,
+        "scale_invariant": True,
+        "points": frustum_points_body(camera),
+        "color": FRUSTUM_COLOR,
+        "colors": [],
+        "indices": [],
+    }
+    return _entity(t_ns, frame, ident, lines=[line])
 
 
 _QUAT_ID = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}

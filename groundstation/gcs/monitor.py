@@ -320,6 +320,15 @@ def render(snap: dict[str, Any]) -> Any:
         style="bold red" if f["red"] else "bold green",
     )
     parts: list[Any] = [table, line]
+    late = [str(r["id"]) for r in snap["vehicles"] if Alarm.TICKS_LATE in r["alarms"]]
+    if late:  # issue 29: say why the numbers are worse, and what to do
+        parts.append(
+            Text(
+                f"ticks late on vehicle(s) {', '.join(late)}: this machine is too slow for the "
+                "simulation speed, the estimates degrade (a lower --speedup, or fewer vehicles)",
+                style="bold red",
+            )
+        )
     counters = []
     if snap.get("zenoh") is not None:
         z = snap["zenoh"]

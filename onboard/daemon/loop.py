@@ -65,6 +65,7 @@ from onboard.daemon.guards import (
     decide,
     takeover_kind,
 )
+from onboard.daemon.lateness import TickLateness
 from onboard.daemon.metrics import DaemonMetrics, percentiles_ms
 from onboard.daemon.odometry import odometry
 from onboard.daemon.peer_clock import PeerClockCheck
@@ -256,6 +257,7 @@ class AgentDaemon:
         self.presence = PeerPresence(self._graph_ids, agent_id, PEER_LOST_HOLD_S)
         self._rigid_cache: dict[frozenset[int], bool] = {}
         self._alarms: list[str] = []
+        self.lateness = TickLateness()
         self.first_connect_grace_s = FIRST_CONNECT_GRACE_S
         self._was_connected = False
         self.clock_check = PeerClockCheck(behind_tol_s=self.core.config.safety.peer_timeout_s)
@@ -439,6 +441,8 @@ class AgentDaemon:
         lam = agent.rigidity_eigenvalue
         if unc is not None and lam is not None and estimate_uncertain(lam, unc):
             alarms.append(Alarm.RIGIDITY_UNCERTAIN.value)  # flagged, not trusted
+        if self.lateness.late:  # the machine is too slow for this speed (issue 29)
+            alarms.append(Alarm.TICKS_LATE.value)
         return VehicleStatus(
             sender=self.id,
             seq=self._status_seq,
@@ -471,10 +475,13 @@ class AgentDaemon:
             delay = next_tick - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            else:
-                next_tick = time.monotonic()  # overrun: do not try to catch up
-            self.metrics.tick_late_s.append(max(0.0, time.monotonic() - next_tick))
+                late_s = max(0.0, time.monotonic() - next_tick)
+            else:  # overrun: count how late, do not try to catch up
+                late_s = -delay
+                next_tick = time.monotonic()
+            self.metrics.tick_late_s.append(late_s)
             mono = time.monotonic()
+            self.lateness.add(mono, late_s)
             if mono - last_tick_mono > STALL_TICK_GAP_S:
                 self._stall_mono = mono
             last_tick_mono = mono

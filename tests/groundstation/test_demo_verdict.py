@@ -31,6 +31,17 @@ def test_a_good_run_passes_in_one_line_that_says_where_its_files_are():
     assert "\n" not in v.line
 
 
+def test_late_ticks_mark_the_run_degraded_whatever_its_numbers():
+    late = {**GOOD, "degraded": True, "late_tick_vehicles": [0, 4], "speedup": 1.0}
+    v = demo_verdict(late)
+    assert v.passed and v.degraded and v.as_json()["degraded"] is True
+    assert v.line.startswith(
+        "PASS DEGRADED (core ticks ran late on vehicle(s) 0, 4 at 1x: this machine was too "
+        "slow for the speed, try a lower --speedup): metric scale 1.8 s"
+    )
+    assert not demo_verdict({**GOOD, "degraded": False}).degraded
+
+
 def test_each_criterion_fails_the_run_and_is_named():
     cases = {
         "time_to_scale_s": (None, "scale never within 2% for good"),

@@ -38,3 +38,25 @@ def test_vehicles_without_an_agent_turn_red_once_the_monitor_has_listened_long_e
     assert len(rows) == 2 and all("no agent" in ln and "agent_lost" in ln for ln in rows)
     # without Zenoh (``--zenoh none``) nobody expects an agent
     assert not any(r["red"] for r in snapshot(mav, None, now, config, 60.0)["vehicles"])
+
+
+def test_late_ticks_are_named_under_the_table():
+    """A daemon whose ticks run late (issue 29) is red and the monitor says what it means."""
+    import msgspec
+
+    from messages.codec import encode
+    from tests.groundstation.standin import StandinConfig, scripted_status
+
+    now, config = 50.0, MonitorConfig(fleet="alpha")
+    zen = ZenohState("alpha")
+    cfg = StandinConfig("alpha", [0, 1])
+    for i in (0, 1):
+        status = scripted_status(cfg, i, 1.0, 1, "flying")
+        if i == 1:
+            status = msgspec.structs.replace(status, alarms=["ticks_late"])
+        zen.fold_sample(f"bf/alpha/{i}/status", encode(status), now - 0.2)
+    snap = snapshot(_autopilots(now), zen, now, config, zenoh_listening_s=10.0)
+    assert [r["red"] for r in snap["vehicles"]] == [False, True]
+    console = Console(record=True, width=200)
+    console.print(render(snap))
+    assert "ticks late on vehicle(s) 1: this machine is too slow" in console.export_text()

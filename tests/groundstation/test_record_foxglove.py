@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import msgspec
 import numpy as np
 from mcap.writer import Writer
 from pymavlink import mavutil
@@ -15,12 +16,16 @@ from pymavlink.dialects.v20 import common as mavlink2
 from typer.testing import CliRunner
 
 from groundstation.gcs.foxglove_scene import (
+    EDGE_BOTH_ALPHA,
+    FRUSTUM_LENGTH_M,
     NED_IN_ENU,
     SCENE_SCHEMA_NAME,
     SCENE_TOPIC,
     TRANSFORMS_SCHEMA_NAME,
     TRANSFORMS_TOPIC,
+    SceneBuilder,
     align_estimates,
+    weight_color,
     yaw_quaternion,
 )
 from groundstation.gcs.record import (
@@ -142,7 +147,34 @@ def test_the_scene_shows_true_and_estimated_poses_and_the_sensing_edges(tmp_path
     assert {"truth 0", "truth 1", "estimate 0", "estimate 1", "edges"} <= set(ids)
     edges = ids["edges"]["lines"][0]
     assert len(edges["points"]) == 4  # 0 -> 1 and 1 -> 0, each two points
-    assert edges["colors"][0] == edges["colors"][2]  # reciprocal: both ends see each other
+    # coloured by rigidity weight (daemon default camera: 120 deg, 15 m): 1 -> 0 lies behind
+    # vehicle 1's camera (weight 0, red), 0 -> 1 straight ahead of vehicle 0's (weight 1, green)
+    assert (
+        edges["colors"][0]
+        == weight_color(1.0, EDGE_BOTH_ALPHA)
+        == {"r": 0.0, "g": 1.0, "b": 0.1, "a": 0.95}
+    )
+    assert edges["colors"][2] == weight_color(0.0, EDGE_BOTH_ALPHA)  # fmt: skip
+    frustum = ids["frustum 1"]
+    assert frustum["frame_id"] == "truth/1" and frustum["frame_locked"]
+    pts = frustum["lines"][0]["points"]  # 8 rays and the 8 segments of the ring at their tips
+    assert len(pts) == 32 and all(
+        math.isclose(math.hypot(p["x"], p["y"], p["z"]), FRUSTUM_LENGTH_M)
+        and math.isclose(p["x"], FRUSTUM_LENGTH_M * math.cos(math.radians(60.0)))
+        for p in pts[1:16:2]
+    )
+
+
+def test_alarms_name_themselves_in_red_on_the_estimate(tmp_path):
+    cfg = StandinConfig("alpha", [0, 1])
+    scene = SceneBuilder()
+    status = scripted_status(cfg, 0, 0.0, 0, "flying")
+    scene.add(msgspec.structs.replace(status, alarms=["ticks_late", "peer_lost:1"]), 0)
+    _tfs, update = scene.messages(0)
+    texts = {e["id"]: e["texts"][0] for e in update["entities"] if e.get("texts")}
+    assert texts["estimate 0"]["text"] == "estimate 0: ticks_late peer_lost:1"
+    assert texts["estimate 0"]["color"]["r"] == 1.0
+    assert "frustum 0" in {e["id"] for e in update["entities"]}  # no truth: on the estimate
 
 
 def test_estimates_are_drawn_after_the_best_similarity_onto_the_truth():
