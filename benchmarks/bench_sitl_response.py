@@ -26,6 +26,7 @@ so and measures the built-in simulator only. Usage::
     python benchmarks/bench_sitl_response.py --quick              # 30 s mission
     python benchmarks/bench_sitl_response.py --dynamics realistic # built-in: realistic only
     python benchmarks/bench_sitl_response.py --part team --paper-sfm  # without the [sfm] safeguards
+    python benchmarks/bench_sitl_response.py --part team --sfm bias_speed_m_s=0.2  # [sfm] setting
 
 Every process it starts is stopped at the end; ``--out DIR`` keeps the logs and the recorded
 series (``response_<autopilot>.npz``, ``team_<autopilot>.npz``).
@@ -284,7 +285,7 @@ def response_metrics(truth: np.ndarray, flown: dict) -> dict:
 def team_run(
     autopilot: str, duration_s: float, out: Path, stamps: str, sensors: str,
     binary: Path | None, log: Callable[[str], None], seed: int = 0, dynamics: str = "ideal",
-    paper_sfm: bool = False,
+    paper_sfm: bool = False, sfm: tuple[str, ...] = (),
 ) -> dict:  # fmt: skip
     """The demo mission with 3 vehicles (module docstring); returns the metrics."""
     from groundstation.demo import (
@@ -316,9 +317,10 @@ def team_run(
                  sensors, "--sitl-instance", str(instance), "--sitl-stamps", stamps,
                  "--sitl-param", FAST_ARMING]  # fmt: skip
     fleet_path = write_demo_files(out, plan, ports, fleet, "formation-active", 0.0, True, instance)
-    if paper_sfm:  # paper 000's observer, without the safeguards against a biased odometry
+    lines = [*(("bias_speed_m_s = 0.0", "wander_max = 0.0") if paper_sfm else ()), *sfm]
+    if lines:  # paper 000's observer (no safeguards against a biased odometry), or overrides
         with fleet_path.open("a") as f:
-            f.write("[sfm]\nbias_speed_m_s = 0.0\nwander_max = 0.0\n")
+            f.write("[sfm]\n" + "".join(f"{line}\n" for line in lines))
     procs = Processes(out)
     ev = None
     gcs = None
@@ -564,6 +566,10 @@ def main() -> None:
         "--dynamics", choices=("ideal", "realistic", "both"), default="both",
         help="the built-in simulator's model(s) measured (sim/dynamics.py)",
     )  # fmt: skip
+    parser.add_argument(
+        "--sfm", action="append", default=[], metavar="KEY=VALUE",
+        help="team: a fleet-file [sfm] setting for the daemons (repeatable), e.g. wander_max=0.01",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--quick", action="store_true", help="30 s mission")
     args = parser.parse_args()
@@ -606,7 +612,7 @@ def main() -> None:
             res[ap] = team_run(ap.split("-")[0], duration, out / f"team_{ap}", args.stamps,
                                args.sensors, binary, log,
                                dynamics=ap.split("-")[1] if "-" in ap else "ideal",
-                               paper_sfm=args.paper_sfm)  # fmt: skip
+                               paper_sfm=args.paper_sfm, sfm=tuple(args.sfm))  # fmt: skip
         print(f"\nteam of 3, demo mission {duration:g} s (stamps {args.stamps}, "
               f"sensors {args.sensors})\n" + table(res))  # fmt: skip
     print(f"\nlogs and series in {out}")

@@ -93,6 +93,8 @@ class RealisticConfig:
     att_noise_std_rad: float = math.radians(0.2)
     yaw_bias_std_rad: float = math.radians(0.5)
     yaw_bias_tau_s: float = 120.0
+    """A slowly varying per-vehicle yaw error; like ``yaw_offset_rad`` it rotates the reported
+    yaw and NED velocity together (optical flow: the heading-frame velocity is unaffected)."""
     yaw_offset_rad: float = 0.0
     """A yaw offset common to every vehicle (SITL without GPS: the magnetic declination,
     12.8 degrees at ArduPilot's test site), rotating the reported yaw and NED velocity together
@@ -227,12 +229,14 @@ def reported_velocity(v_true_ned: FloatArray, yaw_true_rad: FloatArray,
     return v_true_ned + np.einsum("nij,nj->ni", rot_z(yaw_true_rad), bias_heading) + white
 
 
-def rotate_frame(x_ned: FloatArray, angle_rad: float) -> FloatArray:
-    """Vectors of a NED frame expressed in a frame rotated by ``angle_rad`` about down (the
-    frame of an autopilot whose yaw reads ``angle_rad`` more than the truth)."""
-    if angle_rad == 0.0:
+def rotate_frame(x_ned: FloatArray, angle_rad: float | FloatArray) -> FloatArray:
+    """Vectors ``(n, 3)`` of the NED frame as an autopilot whose yaw reads ``angle_rad`` (one
+    for all, or one per row) more than the truth reports them: rotated by ``angle_rad`` about
+    down, so that its body frame (its yaw) sees the true body-frame vector."""
+    a = np.asarray(angle_rad, dtype=float)
+    if not a.any():
         return x_ned
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    c, s = np.cos(a), np.sin(a)
     out = x_ned.copy()
     out[..., 0] = c * x_ned[..., 0] - s * x_ned[..., 1]
     out[..., 1] = s * x_ned[..., 0] + c * x_ned[..., 1]
@@ -340,5 +344,8 @@ def report(st: RealisticState, cfg: RealisticConfig,
     p_rep = p + st.pos_drift_ned
     att = rng.normal(0.0, cfg.att_noise_std_rad, (3, n))
     att[2] += st.yaw_bias_rad + cfg.yaw_offset_rad
-    rot = cfg.yaw_offset_rad
+    # optical flow measures the velocity in the body frame and the EKF rotates it with its own
+    # yaw: a yaw error (common offset or per-vehicle bias) rotates the NED velocity with it,
+    # and the heading-frame velocity stays right (SITL: its 12.8 degree offset does exactly so)
+    rot = cfg.yaw_offset_rad + st.yaw_bias_rad
     return (p_rep, rotate_frame(v_rep, rot), st.a_hist[0], yaw, rate, att)

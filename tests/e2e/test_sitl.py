@@ -35,6 +35,8 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
 DEMO_MISSION_S = 20.0
 """Mission seconds of the demo test (from the mission start); the boot, take-off and landing
 add about 30 s at real time."""
+SITL_HOVER_SPEED_P90_M_S = 0.114
+"""SITL's hover speed (truth, optical flow), p90: ``bench_sitl_response.py --part response``."""
 FAST_ARMING = "ARMING_CHECK=786374"
 """The optical-flow file's arming checks without INS: arms once the EKF is ready (~5 s)
 instead of after SITL's IMUs agreed for 10 s each (~24 s)."""
@@ -193,7 +195,13 @@ def test_demo_mission_on_three_sitl_vehicles(sitl_binary, tmp_path):
     flying = series["flying"]
     heights = -series["p_ned"][flying][:, :, 2]
     assert heights.min() > 1.5, "a vehicle flew below the altitude floor"  # truth from SIM_STATE
-    moved = np.linalg.norm(series["p_ned"][flying][-1] - series["p_ned"][flying][0], axis=1)
-    assert moved.min() > 0.5, moved  # every vehicle flew the mission's velocity setpoints
+    # Every vehicle flew the mission's velocity setpoints: its path (truth) is longer than
+    # twice what SITL's hover wander covers in the same time (p90 hover speed, docs/sim.md).
+    # Not the end-to-start displacement: the formation can bring a vehicle back near its
+    # start (CI saw 0.47 m on a vehicle that flew the mission).
+    p_ned = series["p_ned"][flying]
+    path_m = np.linalg.norm(np.diff(p_ned, axis=0), axis=2).sum(axis=0)
+    flown_s = series["t_s"][flying][-1] - series["t_s"][flying][0]
+    assert path_m.min() > 2.0 * SITL_HOVER_SPEED_P90_M_S * flown_s, (path_m, flown_s)
     errors = series["scale_error"][flying]
     assert np.isfinite(errors[-10:]).all(), errors[-10:]
