@@ -175,8 +175,8 @@ Method = Callable[[Work], tuple[FloatArray, float]]
 
 def run_paper000(w: Work) -> tuple[FloatArray, float]:
     """Each agent runs eq. 6 with its neighbours' last received shares; agent ``i < j`` runs the
-    SfM observer of edge ``(i, j)`` and shares ``dhat_ij``. Shares (10 Hz): estimate, odometry,
-    bearings, owned distances."""
+    SfM observer of edge ``(i, j)`` and shares ``dhat_ij``. Shares (10 Hz): estimate, bearings,
+    owned distances; odometry at 50 Hz."""
     n = w.n
     filt = [LocalizationFilter(_beta_t(w.p0_ned[i]), float(w.yaw0_rad[i])) for i in range(n)]
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
