@@ -88,10 +88,13 @@ def make_work(n: int, seed: int, noise_deg: float, loss: float, duration_s: floa
     rng = np.random.default_rng(seed)
     side = 4.0 * math.sqrt(n)
     centres: list[FloatArray] = []
+    misses = 0
     while len(centres) < n:
         c = np.array([rng.uniform(0, side), rng.uniform(0, side), -rng.uniform(2.0, 5.0)])
         if all(np.linalg.norm(c - d) > 4.5 for d in centres):
             centres.append(c)
+        elif (misses := misses + 1) > 1000:  # the first centres left no room: start over
+            centres, misses = [], 0
     c = np.array(centres)
     amp = rng.uniform(0.5, 1.0, (n, 3)) * np.array([1.0, 1.0, 0.3])
     om = rng.uniform(0.4, 1.2, (n, 3))

@@ -27,6 +27,9 @@ def test_the_work_is_seeded_and_its_bearings_are_unit_body_bearings():
     body = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ r  # R_z(yaw)^T r
     assert np.allclose(exact.beta[0, 0, 1], body / np.linalg.norm(body))
     assert exact.delivered.all() and 0.8 < a.delivered.mean() < 1.0
+    team = make_work(6, 5, 0.0, 0.0, 0.1).p_ned[0]  # this seed's first centres left no room
+    gaps = np.linalg.norm(team[:, None] - team[None], axis=-1)[~np.eye(6, dtype=bool)]
+    assert gaps.min() > 4.5 - 2 * np.sqrt(2 + 0.09)  # centres 4.5 m apart, amplitudes <= 1 m
 
 
 def test_rigid_error_ignores_a_rigid_motion_and_scale_error_sees_the_size():
