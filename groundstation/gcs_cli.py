@@ -240,6 +240,12 @@ def monitor(
     ] = 2.5,
     sysid_offset: SysidOpt = 1,
     keys: KeysOpt = None,
+    ekf: Annotated[
+        bool,
+        typer.Option(
+            "--ekf", help="Also run paper 001's EKF (as gcs estimate) and show its columns."
+        ),
+    ] = False,
 ) -> None:
     """Live table of every vehicle: link health, autopilot, estimator, alarms."""
     from groundstation.gcs.monitor import Monitor, MonitorConfig, render
@@ -253,7 +259,17 @@ def monitor(
         )  # first: opening takes a while
         zen = _zenoh_listener(stack, session, fleet)
         mav = _open_mavlink(stack, mavlink, keys, sysid_offset)
-        mon = Monitor(MonitorConfig(fleet=fleet, sysid_offset=sysid_offset), mav, zen)
+        summary = None
+        if ekf:
+            if session is None:
+                raise _fail("--ekf listens on Zenoh: --zenoh none is not possible")
+            from groundstation.gcs.ekf_live import BackgroundEstimator
+            from groundstation.gcs.ekf_loop import EkfLoop
+
+            bg = BackgroundEstimator(session, fleet, EkfLoop()).start()
+            stack.callback(bg.close)
+            summary = bg.summary
+        mon = Monitor(MonitorConfig(fleet=fleet, sysid_offset=sysid_offset), mav, zen, ekf=summary)
         if once:
             time.sleep(max(0.0, wait))
             snap = mon.snapshot()

@@ -136,6 +136,37 @@ class LiveEstimator:
             self.on_event(f"t={e.t_s:.1f}s {e.message}")
 
 
+class BackgroundEstimator:
+    """A :class:`LiveEstimator` pumped by its own thread, for ``gcs monitor --ekf``: the
+    monitor's refresh calls :meth:`summary` (under the loop's lock) while samples arrive."""
+
+    def __init__(self, session: Any, fleet: str, loop: EkfLoop) -> None:
+        self.loop = loop
+        self.lock = threading.Lock()
+        self._stop = threading.Event()
+        self.estimator = LiveEstimator(session, fleet, loop)
+        self._thread = threading.Thread(target=self._run, name="ekf-pump", daemon=True)
+
+    def start(self) -> BackgroundEstimator:
+        self.estimator.start()
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            with self.lock:
+                self.estimator.pump(0.02)
+
+    def summary(self) -> dict[str, Any]:
+        with self.lock:
+            return self.loop.summary()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.estimator.close()
+
+
 def _f(x: Any, spec: str = ".2f") -> str:
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 

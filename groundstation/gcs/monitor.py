@@ -13,6 +13,13 @@ Alarms are the agent's own (``peer_lost:<id>``, ``rigidity_lost``, ``estimate_di
 monitor has listened on Zenoh that long, an autopilot heard without any agent: one that died
 before the monitor started),
 ``failsafe`` (HEARTBEAT system status CRITICAL or EMERGENCY) and ``battery_low``.
+
+With a running paper 001 EKF (``ekf``: the summary of
+:meth:`groundstation.gcs.ekf_loop.EkfLoop.summary`), each row also carries the EKF's view of
+that vehicle (``ekf_sigma_p_m``: position standard deviation, ``ekf_disagreement_m``: distance
+to the daemon's own estimate, ``ekf_alarm``: the loop's held disagreement alarm, which makes the
+row red) and the snapshot the EKF's scale (``ekf``: RMS distance, its relative standard deviation
+along the scale direction, the daemons' over the EKF's); the table shows two more columns.
 """
 
 from __future__ import annotations
@@ -209,10 +216,12 @@ def snapshot(
     now_s: float,
     config: MonitorConfig,
     zenoh_listening_s: float | None = None,
+    ekf: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The whole picture at ``now_s`` as a JSON-able dict (call it under the listeners' locks).
     ``zenoh_listening_s``: how long Zenoh has been listened to (``None``: unknown); from
-    ``config.agent_lost_s`` on, a vehicle heard only on MAVLink is ``agent_lost``."""
+    ``config.agent_lost_s`` on, a vehicle heard only on MAVLink is ``agent_lost``. ``ekf``: an
+    EKF loop's summary (module doc), or ``None``."""
     systems = mav.systems if mav is not None else {}
     agents = zen.agents if zen is not None else {}
     ids = set(agents) | {s - config.sysid_offset for s in systems}
@@ -225,6 +234,10 @@ def snapshot(
         vehicle_row(i, systems.get(i + config.sysid_offset), agents.get(i), now_s, config, expect)
         for i in sorted(ids)
     ]
+    if ekf is not None:
+        rows = [r | ekf_fields(ekf, r["id"]) for r in rows]
+        for r in rows:
+            r["red"] = r["red"] or r["ekf_alarm"]
     out: dict[str, Any] = {
         "fleet": config.fleet,
         "vehicles": rows,
@@ -239,7 +252,22 @@ def snapshot(
             "last_error": zen.last_error,
             "sim_time_s": None if zen.clock is None else _round(zen.clock.t_s),
         }
+    if ekf is not None:
+        out["ekf"] = {
+            k: _round(ekf.get(k), 3) for k in ("scale_m", "scale_rel_sigma", "daemon_scale_ratio")
+        } | {"reference": ekf.get("reference"), "updates": ekf.get("updates")}
     return out
+
+
+def ekf_fields(ekf: dict[str, Any], vehicle: int) -> dict[str, Any]:
+    """The EKF columns of one vehicle's row from an EKF loop summary (module doc); the
+    reference vehicle has no uncertainty of its own (``sigma`` 0: it defines the frame)."""
+    pose = (ekf.get("poses") or {}).get(str(vehicle), {})
+    return {
+        "ekf_sigma_p_m": _round(pose.get("sigma_p_m"), 3),
+        "ekf_disagreement_m": _round(pose.get("disagreement_m"), 2),
+        "ekf_alarm": bool(pose.get("alarm", False)),
+    }
 
 
 # --- rendering ---------------------------------------------------------------------------------------
@@ -286,6 +314,7 @@ def render(snap: dict[str, Any]) -> Any:
         ("E", "right"),
         ("rig", "right"),
         ("nbrs", "left"),
+        *((("EKF sd m", "right"), ("EKF-dmn m", "right")) if "ekf" in snap else ()),
         ("alarms", "left"),
     ):
         table.add_column(col, justify=justify, no_wrap=col != "alarms")  # type: ignore[arg-type]
@@ -304,7 +333,12 @@ def render(snap: dict[str, Any]) -> Any:
             _fmt(r.get("e_index"), ".2g"),
             _fmt(r.get("rigidity_eigenvalue"), ".2g"),
             ",".join(str(j) for j in r.get("neighbours") or []) or "-",
-            " ".join(r["alarms"]) or "ok",
+            *(
+                (_fmt(r.get("ekf_sigma_p_m"), ".2f"), _fmt(r.get("ekf_disagreement_m"), ".2f"))
+                if "ekf" in snap
+                else ()
+            ),
+            " ".join(r["alarms"] + (["ekf_disagreement"] if r.get("ekf_alarm") else [])) or "ok",
             style="bold red" if r["red"] else None,
         )
     f = snap["fleet_status"]
@@ -329,6 +363,14 @@ def render(snap: dict[str, Any]) -> Any:
                 style="bold red",
             )
         )
+    if "ekf" in snap:
+        e = snap["ekf"]
+        ekf_line = (
+            f"EKF (paper 001, reference {e['reference']}): scale {_fmt(e['scale_m'], '.2f')} m "
+            f"+-{_fmt(None if e['scale_rel_sigma'] is None else 100 * e['scale_rel_sigma'], '.1f')}%"
+            f"  daemons/EKF {_fmt(e['daemon_scale_ratio'], '.3f')}  updates {_fmt(e['updates'])}"
+        )
+        parts.append(Text(ekf_line, style="cyan"))
     counters = []
     if snap.get("zenoh") is not None:
         z = snap["zenoh"]
@@ -354,8 +396,11 @@ class Monitor:
         mavlink: Any = None,
         zenoh: Any = None,
         clock: Callable[[], float] = time.monotonic,
+        ekf: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
+        """``ekf``: returns a running EKF loop's summary (thread-safe), or ``None``."""
         self.config = config
+        self.ekf = ekf
         self.mavlink = mavlink
         self.zenoh = zenoh
         self.clock = clock
@@ -371,6 +416,7 @@ class Monitor:
                 self.clock(),
                 self.config,
                 self.clock() - self.started_s,
+                self.ekf() if self.ekf is not None else None,
             )
 
     def live(self, refresh_hz: float = 4.0, stop: threading.Event | None = None) -> None:

@@ -231,3 +231,37 @@ def test_from_nothing_to_the_metric_scale_without_a_false_alarm():
     assert loop.scale()["scale_m"] == pytest.approx(np.sqrt(np.mean(np.square(d))), rel=0.03)
     assert max(loop.disagreements().values()) < 0.2
     assert not loop.alarms and "disagreement" not in loop.event_counts
+
+
+def test_monitor_shows_the_ekf_columns_and_turns_the_disagreeing_vehicle_red():
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+    from rich.console import Console
+
+    from groundstation.gcs.mavlink_state import MavlinkState
+    from groundstation.gcs.monitor import MonitorConfig, render, snapshot
+
+    loop = EkfLoop(EkfLoopConfig(max_disagreement_m=1.0, settle_s=2.0, alarm_hold_s=0.5))
+    _feed(loop, 0.0, 0.1)
+    loop.state = _truth_state(0.0)
+    _feed(loop, 0.1, 3.0, daemon_offset={3: np.array([3.0, 0.0, 0.0])})
+    mav, parser, now = MavlinkState(), dialect.MAVLink(None), 50.0
+    for vehicle in loop.ids:  # heartbeats of the three vehicles (system id = vehicle + 1)
+        enc = dialect.MAVLink(None, srcSystem=vehicle + 1, srcComponent=1)
+        (msg,) = parser.parse_buffer(
+            dialect.MAVLink_heartbeat_message(2, 3, 209, 4, 4, 3).pack(enc)
+        )
+        mav.fold(msg, now - 0.5)
+    plain = snapshot(mav, None, now, MonitorConfig())
+    snap = snapshot(mav, None, now, MonitorConfig(), ekf=loop.summary())
+    assert "ekf" not in plain and "ekf_alarm" not in plain["vehicles"][0]
+    rows = {r["id"]: r for r in snap["vehicles"]}
+    assert rows[3]["ekf_alarm"] and rows[3]["red"] and rows[3]["ekf_disagreement_m"] > 2.5
+    assert not rows[2]["ekf_alarm"] and not rows[2]["red"] and rows[2]["ekf_disagreement_m"] < 0.2
+    assert 0.0 < rows[2]["ekf_sigma_p_m"] < 0.5
+    assert snap["ekf"]["scale_m"] == pytest.approx(loop.scale()["scale_m"], abs=1e-3)
+    console = Console(record=True, width=200)
+    console.print(render(snap))
+    text = console.export_text()
+    assert "EKF sd m" in text and "EKF (paper 001" in text
+    (row3,) = [ln for ln in text.splitlines() if ln.strip().startswith("3 ")]
+    assert "ekf_disagreement" in row3

@@ -134,3 +134,36 @@ def test_ctrl_c_stops_the_live_estimator_cleanly_with_its_summary():
     assert proc.returncode == 1 and b"Traceback" not in err  # 1: the filter never updated
     s = json.loads(out.decode().strip().splitlines()[-1])
     assert s["updates"] == 0 and s["vehicles"] == [] and s["samples"] == 0
+
+
+def test_monitor_with_ekf_shows_the_filters_columns_from_zenoh():
+    """``gcs monitor --ekf --once --json`` on a real Zenoh session: the team's samples (paced as
+    the loop test feeds them, repeated until the monitor prints) give every vehicle row the EKF
+    columns and the snapshot the EKF's scale."""
+    endpoint = loopback_endpoint(free_port_base(1))
+    hub = open_session(ZenohSettings(listen=[endpoint]))
+    cmd = ["gcs", "monitor", "--ekf", "--once", "--json", "--wait", "4", "--mavlink", "none"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "groundstation.cli", *cmd, "--zenoh", endpoint],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        publisher, k = _Publisher(hub, "alpha"), 0
+        deadline = time.monotonic() + 14.0
+        while proc.poll() is None and time.monotonic() < deadline:
+            _feed(publisher, 0.1 * k, 0.1 * (k + 1))
+            k += 1
+            time.sleep(0.1)
+        out, err = proc.communicate(timeout=5.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        hub.close()
+    assert proc.returncode == 0, err.decode()[-500:]
+    snap = json.loads(out)
+    assert snap["ekf"]["updates"] > 0 and snap["ekf"]["scale_m"] > 0.0
+    rows = {r["id"]: r for r in snap["vehicles"]}
+    assert sorted(rows) == [1, 2, 3]
+    member = next(i for i in rows if i != snap["ekf"]["reference"])
+    assert rows[member]["ekf_sigma_p_m"] > 0.0 and rows[member]["ekf_disagreement_m"] is not None
