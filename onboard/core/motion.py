@@ -10,7 +10,9 @@ The formation laws take a new desired formation in flight (:meth:`Formation.adop
 formation changes): the gradient flow simply descends towards the new ``beta*_ij`` from where the
 team is, so the switch is continuous in position (the link saturates the velocity step). A
 *leader* (paper 002, "leader" option of :func:`onboard.distributed.flow.apply_leaders` with a zero
-external velocity) is not moved by the law: it holds, and the others follow its bearings.
+external velocity) is not moved by the law: it holds, and the others follow its bearings; in
+``formation-active`` the active rotation ``w_l`` pauses meanwhile (a formation cannot turn about
+its centroid around a vehicle that holds).
 """
 
 from __future__ import annotations
@@ -172,8 +174,10 @@ class FormationActive(Formation):
         self.active = active
 
     def step(self, own: Own, outbox: list[Payload]) -> Command | None:
-        if self.leader == self.id:
-            return Command(_ZERO, 0.0)
+        if self.leader is not None:
+            # a formation cannot turn about its centroid around a vehicle that holds: with a
+            # leader the active rotation pauses and every follower flies the plain law
+            return super().step(own, outbox)
         t_s, dt = own.t_s, own.dt_s
         u_f, w_f = self.formation(t_s)
         g, sc = self.active, self.scale
