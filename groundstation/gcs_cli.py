@@ -4,6 +4,9 @@
 * ``arm | takeoff | land`` (autopilots, MAVLink), ``start | hold`` (agents, Zenoh), ``stop``
   (both: the emergency action) — to ``--ids 1,3`` or ``--all``, confirmed unless ``--yes``;
 * ``view`` — the team's 3D scene live to Foxglove over its WebSocket protocol;
+
+
+* ``formation FILE.toml [--leader ID]`` — a new desired formation to the flying agents;
 * ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``;
 * ``estimate [--duration S] [--json]`` — paper 001's centralized EKF live over Zenoh beside the
   daemons' estimates (``--replay IN.mcap``: on a recording).
@@ -505,6 +508,64 @@ def view(
         except KeyboardInterrupt:
             pass
         zen.close()  # the hooks stop before the server does
+
+
+@gcs_app.command("formation")
+def formation(
+    file: Annotated[Path, typer.Argument(help="Formation file (README, 'Formation files').")],
+    leader: Annotated[
+        int | None, typer.Option("--leader", help="Vehicle that holds its position.")
+    ] = None,
+    formation_id: Annotated[
+        int | None, typer.Option("--id", help="Formation id (default: from the clock).")
+    ] = None,
+    yes: Annotated[bool, typer.Option("--yes", "-y", help="Do not ask for confirmation.")] = False,
+    fleet: FleetOpt = "alpha",
+    zenoh: ZenohOpt = None,
+    zenoh_listen: ZenohListenOpt = None,
+    timeout: Annotated[
+        float, typer.Option("--timeout", help="Seconds to wait for every status to show it.")
+    ] = 5.0,
+    json: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+    keys: KeysOpt = None,
+) -> None:
+    """Send a new desired formation to the flying agents (Zenoh); each status acknowledges it."""
+    from groundstation.gcs import commands as cmds
+    from messages.formation import FormationError, load_formation
+
+    _check_fleet(fleet)
+    try:
+        f = load_formation(file)
+    except FormationError as exc:
+        raise _fail(str(exc)) from None
+    ids = [int(i) for i in f.ids]
+    if leader is not None and leader not in ids:
+        raise _fail(f"--leader {leader} is not a vehicle of {file} (ids {ids})")
+    fid = formation_id if formation_id is not None else time.time_ns() // 1_000_000 % (1 << 40)
+    if fid < 1:
+        raise _fail(f"--id must be >= 1 (0 is the fleet file's formation), got {fid}")
+    if not yes and not typer.confirm(f"formation {f.name!r} (id {fid}) to vehicles {ids}?"):
+        typer.echo("not confirmed: nothing sent")
+        raise typer.Exit(EXIT_FAILED)
+    with ExitStack() as stack:
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
+        zen = _zenoh_listener(stack, session, fleet)
+        if zen is None:
+            raise _fail("formation goes over Zenoh: --zenoh none is not possible")
+        results = cmds.run_formation(session, zen, fleet, f, ids, timeout, fid, leader)
+    failed = [i for i, o in results.items() if not o.ok]
+    sent = {"formation": f.name, "id": fid, "leader": leader, "vehicles": ids}
+    if json:
+        rows = [{"id": i, "ok": o.ok, "details": o.details} for i, o in sorted(results.items())]
+        typer.echo(jsonlib.dumps({**sent, "results": rows}))
+    else:
+        lead = f", leader {leader}" if leader is not None else ""
+        typer.echo(f"sent formation {f.name!r} id {fid}{lead} to vehicles {ids}")
+        for i, o in sorted(results.items()):
+            typer.echo(f"vehicle {i}: {'OK  ' if o.ok else 'FAIL'}  " + "; ".join(o.details))
+        typer.echo(f"formation: {len(results) - len(failed)}/{len(results)} vehicles OK")
+    if failed:
+        raise typer.Exit(EXIT_FAILED)
 
 
 # --- record / replay / plot ----------------------------------------------------------------------------

@@ -9,6 +9,7 @@ from __future__ import annotations
 import msgspec
 
 from messages.codec import Payload
+from messages.limits import AgentId, Seq
 from messages.vocabulary import Phase
 
 Vec3 = tuple[float, float, float]
@@ -113,3 +114,8 @@ class VehicleStatus(Payload, tag="vehicle.status"):
     ``failsafe``, ``pilot_takeover``, ``altitude_floor``."""
     dropped: dict[str, int] = msgspec.field(default_factory=dict)
     """Counters of dropped input by reason (malformed, version, nonfinite, unknown_sender, ...)."""
+    formation_id: Seq = 0
+    """The desired formation the agent flies: 0 the fleet file's, else the ``formation_id`` of
+    the last :class:`messages.command.FormationChange` it adopted (the ground station's ack)."""
+    formation_leader: AgentId | None = None
+    """The vehicle that holds its position in that formation (``None``: no leader)."""

@@ -10,6 +10,10 @@
   every selected agent, at once; a vehicle counts as reached when either path acknowledged, so
   it lands even if its agent is dead.
 
+* ``formation FILE`` sends a new desired formation (:class:`~messages.command.FormationChange`
+  on ``bf/<fleet>/<id>/command/formation``), repeated every :data:`RETRY_PERIOD_S` until each
+  agent's status shows its ``formation_id`` (:func:`run_formation`).
+
 Every vehicle gets a :class:`Outcome`; the caller prints them and fails if any is not ``ok``.
 """
 
@@ -26,7 +30,14 @@ from groundstation.gcs.mavlink_state import Ack, MavlinkState
 from groundstation.gcs.zenoh_listener import ZenohListener, ZenohState
 from messages import mavlink as mv
 from messages.codec import encode
-from messages.command import COMMAND_TOPIC, FleetCommand
+from messages.command import (
+    COMMAND_TOPIC,
+    FORMATION_TOPIC,
+    FleetCommand,
+    FormationChange,
+    FormationSlot,
+)
+from messages.formation import Formation
 from messages.keys import key
 
 MAVLINK_ACTIONS = ("arm", "takeoff", "land")
@@ -291,4 +302,68 @@ def merge_stop(mav: dict[int, Outcome], agents: dict[int, Outcome]) -> dict[int,
     for i in sorted(set(mav) | set(agents)):
         parts = [o for o in (mav.get(i), agents.get(i)) if o is not None]
         out[i] = Outcome(i, any(o.ok for o in parts), [d for o in parts for d in o.details])
+    return out
+
+
+def formation_slots(formation: Formation) -> list[FormationSlot]:
+    """A formation file's agents as the slots of a :class:`FormationChange`."""
+    return [
+        FormationSlot(id=int(i), position_ned=tuple(float(x) for x in p), yaw_rad=float(y))  # type: ignore[arg-type]
+        for i, p, y in zip(formation.ids, formation.p_ned, formation.yaw_rad, strict=True)
+    ]
+
+
+def run_formation(
+    session: Any,
+    zenoh: ZenohListener,
+    fleet: str,
+    formation: Formation,
+    ids: Sequence[int],
+    timeout_s: float,
+    formation_id: int,
+    leader: int | None = None,
+) -> dict[int, Outcome]:
+    """Send ``formation`` to every agent in ``ids`` (one :class:`FormationChange` each, again
+    every :data:`RETRY_PERIOD_S`) until each status reports ``formation_id`` or ``timeout_s``."""
+    slots = formation_slots(formation)
+    name = formation.name[:64]
+
+    def adopted(state: ZenohState) -> set[int]:
+        return {
+            i
+            for i, a in state.agents.items()
+            if a.status is not None and a.status.formation_id == formation_id
+        }
+
+    deadline = time.monotonic() + timeout_s
+    seq = 0
+    while True:
+        stamp = time.time()
+        for i in ids:
+            change = FormationChange(
+                sender=GCS_SENDER_ID, seq=seq, stamp_s=stamp, target=i,
+                formation_id=formation_id, agents=slots, name=name, leader=leader,
+            )  # fmt: skip
+            session.put(key(fleet, i, FORMATION_TOPIC), encode(change))
+            seq += 1
+        left = deadline - time.monotonic()
+        if left <= 0 or zenoh.wait_for(lambda s: set(ids) <= adopted(s), min(RETRY_PERIOD_S, left)):
+            break
+    out = {i: Outcome(i) for i in ids}
+    with zenoh.lock:
+        for i in ids:
+            a = zenoh.state.agents.get(i)
+            status = None if a is None else a.status
+            if status is not None and status.formation_id == formation_id:
+                out[i].ok = True
+                held = " (leader: holds)" if status.formation_leader == i else ""
+                out[i].details.append(f"agent: flies formation {formation_id}{held}")
+            elif status is None:
+                out[i].details.append(f"agent: no status within {timeout_s:g} s")
+            else:
+                refused = {k: n for k, n in status.dropped.items() if k.startswith("command_")}
+                out[i].details.append(
+                    f"agent: still flies formation {status.formation_id} after {timeout_s:g} s"
+                    + (f" (dropped {refused})" if refused else "")
+                )
     return out

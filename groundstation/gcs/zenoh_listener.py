@@ -19,7 +19,14 @@ from typing import Any
 
 from messages.agent import VehicleStatus
 from messages.codec import MessageError, Payload, decode
-from messages.command import ACK_TOPIC, COMMAND_TOPIC, CommandAck, FleetCommand
+from messages.command import (
+    ACK_TOPIC,
+    COMMAND_TOPIC,
+    FORMATION_TOPIC,
+    CommandAck,
+    FleetCommand,
+    FormationChange,
+)
 from messages.keys import ALIVE_TOPIC, PEER_TOPIC, STATUS_TOPIC, fleet_keys, is_sim_key, parse_key
 from messages.peer import PeerPayload
 from messages.sim import CAMERA_TOPIC, TRUTH_TOPIC, CameraBearings, SimClock, SimStep, Truth
@@ -29,6 +36,7 @@ TOPIC_TYPES: dict[str, Any] = {
     STATUS_TOPIC: VehicleStatus,
     COMMAND_TOPIC: FleetCommand,
     ACK_TOPIC: CommandAck,
+    FORMATION_TOPIC: FormationChange,
     CAMERA_TOPIC: CameraBearings,
     TRUTH_TOPIC: Truth,
 }
@@ -78,7 +86,9 @@ def classify(fleet: str, key: str, data: bytes) -> Decoded:
     if kind is None:
         raise MessageError(DropReason.FOREIGN, f"unknown topic {topic!r} in {key}")
     payload = decode(data, kind)
-    owner = payload.target if isinstance(payload, FleetCommand) else payload.sender
+    owner = (
+        payload.target if isinstance(payload, FleetCommand | FormationChange) else payload.sender
+    )
     if owner != agent_id:
         raise MessageError(
             DropReason.SENDER_MISMATCH, f"{type(payload).__name__} of {owner} on {key}"

@@ -40,6 +40,7 @@ from onboard.core.bearings import finite
 from onboard.core.config import AgentConfig
 from onboard.core.layer import Command, Own, Vec3
 from onboard.core.modes import compose
+from onboard.core.motion import FloatArray, Formation
 from onboard.core.peers import Drops, PeerTable, Route
 from onboard.estimation.localization import LocalizationFilter
 
@@ -204,6 +205,17 @@ class AgentCore:
         self.peers.clear()
         for layer in self.layers:
             layer.forget_time()
+
+    # ------------------------------------------------------------ formation changes
+    def adopt_formation(
+        self, p_ned: FloatArray, yaw_rad: FloatArray, leader: int | None = None
+    ) -> bool:
+        """Fly a new desired formation (agent ``k`` at ``p_ned[k]`` with yaw ``yaw_rad[k]``;
+        ``leader`` holds its position): ``False`` when this mode flies no formation."""
+        if not isinstance(self.controller, Formation):
+            return False
+        self.controller.adopt(p_ned, yaw_rad, leader)
+        return True
 
     # -------------------------------------------------------------- status
     def status(self) -> AgentStatus:

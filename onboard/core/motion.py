@@ -5,6 +5,14 @@ eq. 20) with yaw alignment.
 Each returns the mode's velocity / yaw-rate command; the estimates it needs come from the scale
 layer (:class:`onboard.core.scale.Scale`) and the camera layer
 (:class:`onboard.core.bearings.Bearings`) it is built on. Explicit Euler with the step's ``dt``.
+
+The formation laws take a new desired formation in flight (:meth:`Formation.adopt`, paper 002's
+formation changes): the gradient flow simply descends towards the new ``beta*_ij`` from where the
+team is, so the switch is continuous in position (the link saturates the velocity step). A
+*leader* (paper 002, "leader" option of :func:`onboard.distributed.flow.apply_leaders` with a zero
+external velocity) is not moved by the law: it holds, and the others follow its bearings; in
+``formation-active`` the active rotation ``w_l`` pauses meanwhile (a formation cannot turn about
+its centroid around a vehicle that holds).
 """
 
 from __future__ import annotations
@@ -14,7 +22,9 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any, ClassVar
 
+import msgspec
 import numpy as np
+from numpy.typing import NDArray
 
 from messages.codec import Payload
 from messages.peer import LocalizationState
@@ -26,6 +36,9 @@ from onboard.core.config import ActiveGains, FormationGains, Graph
 from onboard.core.layer import Command, Own, Vec3
 from onboard.core.peers import Route
 from onboard.core.scale import Scale
+from onboard.geometry import bearings_body
+
+FloatArray = NDArray[np.float64]
 
 _ZERO: Vec3 = (0.0, 0.0, 0.0)
 
@@ -105,8 +118,24 @@ class Formation(_Controller):
         self.scale = scale
         self.neighbours = sorted(set(bearings.out_targets) | set(bearings.in_sources))
         self.desired = {(i, j): tuple(b) for i, j, b in gains.desired_beta_body}
+        self.leader: int | None = None
+
+    def adopt(self, p_ned: FloatArray, yaw_rad: FloatArray, leader: int | None) -> None:
+        """Fly a new desired formation: vertex ``k`` of ``p_ned`` ``(N, 3)`` and ``yaw_rad``
+        ``(N,)`` is agent ``k``; ``beta*_ij`` is recomputed on this agent's sensing edges."""
+        edges = np.array(sorted(self.desired), dtype=np.int64).reshape(-1, 2)
+        beta, _ = bearings_body(p_ned, yaw_rad, edges)
+        self.desired = {
+            (int(i), int(j)): tuple(b.tolist()) for (i, j), b in zip(edges, beta, strict=True)
+        }
+        self.gains = msgspec.structs.replace(
+            self.gains, desired_yaw_rad=tuple(float(y) for y in yaw_rad)
+        )
+        self.leader = leader
 
     def step(self, own: Own, outbox: list[Payload]) -> Command | None:
+        if self.leader == self.id:
+            return Command(_ZERO, 0.0)
         return Command(*self.formation(own.t_s))
 
     def formation(self, t_s: float) -> tuple[Vec3, float]:
@@ -145,6 +174,10 @@ class FormationActive(Formation):
         self.active = active
 
     def step(self, own: Own, outbox: list[Payload]) -> Command | None:
+        if self.leader is not None:
+            # a formation cannot turn about its centroid around a vehicle that holds: with a
+            # leader the active rotation pauses and every follower flies the plain law
+            return super().step(own, outbox)
         t_s, dt = own.t_s, own.dt_s
         u_f, w_f = self.formation(t_s)
         g, sc = self.active, self.scale

@@ -32,7 +32,7 @@ import numpy as np
 
 from messages.agent import AgentStatus, OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
-from messages.command import FleetCommand
+from messages.command import FleetCommand, formation_problem
 from messages.fatal import is_permanent
 from messages.limits import (
     ANGLE_MAX_RAD,
@@ -264,6 +264,7 @@ class AgentDaemon:
         self.seq_window = SeqWindow()
         self._skewed: frozenset[int] = frozenset()
         self._status_seq = 0
+        self._formation: tuple[int, int | None] = (0, None)  # (formation_id, leader) flown
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
         self._frame_link_s: tuple[float, float | None] = (-math.inf, None)
@@ -376,6 +377,20 @@ class AgentDaemon:
                 if cmd.action == "hold":
                     self.state.set(Phase.HOLDING)
             self._actions.put((cmd.action, cmd))
+        change = self.peers.formation()
+        if change is None or change.formation_id == self._formation[0]:
+            return  # the ground station repeats a change until the status shows it
+        problem = formation_problem(change, frozenset(range(self.fleet.n)))
+        if problem:
+            self.drops.drop(DropReason.MALFORMED, problem, DropScope.COMMAND)
+            return
+        slots = sorted(change.agents, key=lambda a: a.id)
+        p_ned = np.array([a.position_ned for a in slots], dtype=float)
+        if self.core.adopt_formation(p_ned, np.array([a.yaw_rad for a in slots]), change.leader):
+            self._formation = (change.formation_id, change.leader)
+        else:
+            self.drops.drop(DropReason.FOREIGN, f"mode {self.core.config.mode}: no formation",
+                            DropScope.COMMAND)  # fmt: skip
 
     def _update_peers(self, now_s: float) -> None:
         self.presence.update(self.peers.alive_peers(), now_s)
@@ -458,6 +473,8 @@ class AgentDaemon:
             phase=self.state.get(),
             alarms=alarms,
             dropped=dropped,
+            formation_id=self._formation[0],
+            formation_leader=self._formation[1],
         )
 
     def run(self) -> None:

@@ -20,7 +20,14 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from messages.codec import MessageError, Payload, decode, encode
-from messages.command import ACK_TOPIC, COMMAND_TOPIC, CommandAck, FleetCommand
+from messages.command import (
+    ACK_TOPIC,
+    COMMAND_TOPIC,
+    FORMATION_TOPIC,
+    CommandAck,
+    FleetCommand,
+    FormationChange,
+)
 from messages.keys import PEER_TOPIC, STATUS_TOPIC, alive_key, key, parse_key
 from messages.peer import PeerPayload
 from messages.transport import ZenohSettings, open_session
@@ -88,6 +95,7 @@ class PeerLink:
         self._lock = threading.Lock()
         self._inbox: deque[Payload] = deque(maxlen=10_000)
         self._commands: deque[FleetCommand] = deque(maxlen=100)
+        self._formation: FormationChange | None = None
         self._alive: set[int] = set()
         self._handles: list[Any] = []
         self._publishers: dict[str, Any] = {}
@@ -113,6 +121,11 @@ class PeerLink:
             )
         self._handles.append(
             self.session.declare_subscriber(key(fleet, agent_id, COMMAND_TOPIC), self._on_command)
+        )
+        self._handles.append(
+            self.session.declare_subscriber(
+                key(fleet, agent_id, FORMATION_TOPIC), self._on_formation
+            )
         )
         self._handles.append(
             self.session.liveliness().declare_subscriber(
@@ -164,6 +177,20 @@ class PeerLink:
         with self._lock:
             self._commands.append(cmd)
 
+    def _on_formation(self, sample: Any) -> None:
+        try:
+            change = decode(sample.payload.to_bytes(), FormationChange)
+        except MessageError as exc:
+            self.drops.drop(exc.reason, exc.detail, DropScope.COMMAND)
+            return
+        if change.target != self.id:
+            self.drops.drop(
+                DropReason.FOREIGN, f"formation for agent {change.target}", DropScope.COMMAND
+            )
+            return
+        with self._lock:
+            self._formation = change  # only the newest matters
+
     def _on_alive(self, sample: Any) -> None:
         try:
             _, agent_id, _ = parse_key(str(sample.key_expr))
@@ -189,6 +216,12 @@ class PeerLink:
         with self._lock:
             out = list(self._commands)
             self._commands.clear()
+        return out
+
+    def formation(self) -> FormationChange | None:
+        """The newest formation change received since the last call."""
+        with self._lock:
+            out, self._formation = self._formation, None
         return out
 
     def alive_peers(self) -> set[int]:

@@ -79,6 +79,9 @@ class _Peers:
     def commands(self) -> list:
         return []
 
+    def formation(self) -> None:
+        return None
+
     def alive_peers(self) -> set:
         return set()
 

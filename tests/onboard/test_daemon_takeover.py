@@ -125,6 +125,9 @@ class _Peers:
         out, self.queued = self.queued, []
         return out
 
+    def formation(self) -> None:
+        return None
+
     def alive_peers(self) -> set:
         return set()
 
