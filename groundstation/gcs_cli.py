@@ -205,6 +205,17 @@ def _zenoh_listener(stack: ExitStack, session: Any, fleet: str) -> Any:
     return listener
 
 
+def _wait(stop: Any, duration: float | None) -> None:
+    """Until ``stop`` (a ``threading.Event``) is set, ``duration`` seconds pass, or Ctrl-C."""
+    t_end = None if duration is None else time.monotonic() + duration
+    try:
+        while not stop.wait(0.2):
+            if t_end is not None and time.monotonic() >= t_end:
+                return
+    except KeyboardInterrupt:
+        pass
+
+
 def _check_fleet(fleet: str) -> None:
     from messages.keys import fleet_keys
 
@@ -500,13 +511,7 @@ def view(
             "(Foxglove: Open connection, Foxglove WebSocket); Ctrl-C to stop",
             err=True,
         )
-        t_end = None if duration is None else time.monotonic() + duration
-        try:
-            while not stop.wait(0.2):
-                if t_end is not None and time.monotonic() >= t_end:
-                    break
-        except KeyboardInterrupt:
-            pass
+        _wait(stop, duration)
         zen.close()  # the hooks stop before the server does
 
 
@@ -604,13 +609,7 @@ def record(
             zen.sample_hooks.append(rec.zenoh_sample)
             zen.alive_hooks.append(rec.alive)
         typer.echo(f"recording fleet {fleet!r} to {out}; Ctrl-C to stop", err=True)
-        t_end = None if duration is None else time.monotonic() + duration
-        try:
-            while not stop.wait(0.2):
-                if t_end is not None and time.monotonic() >= t_end:
-                    break
-        except KeyboardInterrupt:
-            pass
+        _wait(stop, duration)
         if zen is not None:  # stop the hooks before the file is closed
             zen.close()
     counts = " ".join(f"{k}={v}" for k, v in sorted(rec.counts.items())) or "nothing"

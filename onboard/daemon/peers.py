@@ -17,7 +17,7 @@ import random
 import threading
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, TypeVar
 
 from messages.codec import MessageError, Payload, decode, encode
 from messages.command import (
@@ -34,6 +34,8 @@ from messages.transport import ZenohSettings, open_session
 from messages.vocabulary import DropReason, DropScope, drop_key
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 
 class DropCounter:
@@ -163,33 +165,27 @@ class PeerLink:
 
         return on_sample
 
-    def _on_command(self, sample: Any) -> None:
+    def _targeted(self, sample: Any, kind: type[T], what: str) -> T | None:
+        """A command-scope payload addressed to this agent, or ``None`` (counted and dropped)."""
         try:
-            cmd = decode(sample.payload.to_bytes(), FleetCommand)
+            msg = decode(sample.payload.to_bytes(), kind)
         except MessageError as exc:
             self.drops.drop(exc.reason, exc.detail, DropScope.COMMAND)
-            return
-        if cmd.target != self.id:
-            self.drops.drop(
-                DropReason.FOREIGN, f"command for agent {cmd.target}", DropScope.COMMAND
-            )
-            return
-        with self._lock:
-            self._commands.append(cmd)
+            return None
+        if msg.target != self.id:
+            self.drops.drop(DropReason.FOREIGN, f"{what} for agent {msg.target}", DropScope.COMMAND)
+            return None
+        return msg
+
+    def _on_command(self, sample: Any) -> None:
+        if (cmd := self._targeted(sample, FleetCommand, "command")) is not None:
+            with self._lock:
+                self._commands.append(cmd)
 
     def _on_formation(self, sample: Any) -> None:
-        try:
-            change = decode(sample.payload.to_bytes(), FormationChange)
-        except MessageError as exc:
-            self.drops.drop(exc.reason, exc.detail, DropScope.COMMAND)
-            return
-        if change.target != self.id:
-            self.drops.drop(
-                DropReason.FOREIGN, f"formation for agent {change.target}", DropScope.COMMAND
-            )
-            return
-        with self._lock:
-            self._formation = change  # only the newest matters
+        if (change := self._targeted(sample, FormationChange, "formation")) is not None:
+            with self._lock:
+                self._formation = change  # only the newest matters
 
     def _on_alive(self, sample: Any) -> None:
         try:
