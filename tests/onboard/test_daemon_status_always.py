@@ -48,6 +48,7 @@ class _Link:
         self.connected = connected
         self.implausible = implausible
         self.setpoint_ages_s: list[float] = []
+        self.frame_to_wire_s: list[float] = []
 
     def connect(self, url: str, timeout_s: float) -> None:
         time.sleep(0.05)

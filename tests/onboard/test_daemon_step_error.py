@@ -39,6 +39,7 @@ class _Link:
     def __init__(self) -> None:
         self.setpoints: list[tuple] = []
         self.setpoint_ages_s: list[float] = []
+        self.frame_to_wire_s: list[float] = []
 
     def connect(self, url: str, timeout_s: float) -> None:
         time.sleep(0.05)

@@ -62,6 +62,7 @@ class _Link:
         self.mode = "AUTO.LOITER"
         self.starts = 0
         self.setpoint_ages_s: list[float] = []
+        self.frame_to_wire_s: list[float] = []
         self._events: list[LinkEvent] = []
         self._lock = threading.Lock()
 
