@@ -1,6 +1,6 @@
 """Consistency of paper 001's EKF against the prior's distance (issue 26, README paper 001).
 
-Mean NEES of 20 seeded runs of the exciting three-agent team of tests/onboard/test_se3_ekf.py
+Mean NEES of 20 seeded runs of the exciting three-agent team of ``sim/se3_montecarlo.py`` (as in the filter's tests)
 (20 Hz, prior error drawn from the prior covariance) against the two-sided 95% chi-square
 bounds, for priors from the test's close one to the ``ekf-se3`` scenario's far one (2 m, 60
 degrees), plain and iterated updates.
@@ -15,7 +15,7 @@ import argparse
 import numpy as np
 from scipy.stats import chi2
 
-from tests.onboard.test_se3_ekf import _run
+from sim.se3_montecarlo import monte_carlo_run
 
 PRIORS = ((0.1, 0.05, 1), (0.5, 0.2, 1), (1.0, 0.5, 1), (2.0, 1.05, 1), (2.0, 1.05, 3))
 """``(sigma_p_m, sigma_theta_rad, iterations)``."""
@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     for sig_p, sig_t, it in PRIORS:
         nees = np.array(
             [
-                _run("exciting", s, args.steps, sig_p, sig_t, iterations=it)[0]
+                monte_carlo_run("exciting", s, args.steps, sig_p, sig_t, iterations=it)[0]
                 for s in range(args.runs)
             ]
         )

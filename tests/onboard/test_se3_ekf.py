@@ -26,8 +26,8 @@ from onboard.estimation.se3_ekf import (
 )
 from onboard.geometry import so3_exp, so3_log
 from onboard.rigidity.observability import observability_rank_report
+from sim.se3_montecarlo import EDGES, P0_WORLD, monte_carlo_run, team_motion
 
-EDGES = np.array([(0, 1), (1, 0), (0, 2), (2, 0), (1, 2), (2, 1)])
 FD_STEP = 1e-6
 FD_ATOL = 1e-6
 
@@ -194,69 +194,6 @@ def test_update_drops_nan_bearings_and_rejects_bad_arguments():
 # Monte Carlo: consistency and scale observability
 # ---------------------------------------------------------------------------------------------
 
-DT_S = 0.05
-SIGMA_V = 0.05
-SIGMA_W = 0.02
-SIGMA_BEARING = 0.01
-P0_WORLD = np.array([[0.0, 0.0, 0.0], [2.0, 0.5, -1.0], [-0.5, 2.5, -1.5]])
-
-
-def _motion(kind: str, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """True body velocities ``(3, 3)`` and angular rates ``(3, 3)`` at time ``t``."""
-    v = np.zeros((3, 3))
-    w = np.zeros((3, 3))
-    if kind == "exciting":
-        v[1] = [0.8 * np.cos(1.3 * t), 0.3 * np.sin(0.7 * t), 0.2 * np.cos(0.9 * t)]
-        v[2] = [0.6 * np.sin(1.1 * t), 0.7 * np.cos(0.8 * t), -0.2 * np.sin(0.5 * t)]
-        w[1] = [0.1 * np.sin(0.6 * t), 0.1 * np.cos(0.4 * t), 0.3]
-        w[2] = [0.05, -0.1 * np.sin(0.3 * t), -0.2]
-    elif kind == "translation":
-        # every agent (the reference too) flies the same world velocity, attitudes identity
-        v[:] = [0.7 * np.cos(0.9 * t), 0.5, 0.2 * np.sin(1.2 * t)]
-    return v, w
-
-
-def _run(
-    kind: str,
-    seed: int,
-    steps: int,
-    sig_p: float = 0.5,
-    sig_t: float = 0.2,
-    scale0: float = 1.0,
-    iterations: int = 1,
-) -> tuple[list[float], Se3EkfState, np.ndarray]:
-    """One Monte Carlo run: truth from the filter's model, noisy inputs and bearings.
-
-    The prior error is drawn from the prior covariance (``sig_p`` m, ``sig_t`` rad). Returns
-    the NEES per step, the last state and the last true positions. ``scale0`` scales the
-    prior's positions about the reference (bearings cannot tell).
-    """
-    rng = np.random.default_rng([seed, 26])
-    p_w = P0_WORLD.copy()
-    rot_w = np.tile(np.eye(3), (3, 1, 1))
-    p_true, rot_true = relative_poses(p_w, rot_w)
-    std = np.array([[SIGMA_V, SIGMA_W]] * 3)
-    if kind != "translation":
-        std[0] = 0.0  # static reference: its zero velocity is known exactly
-    dx0 = np.concatenate([rng.normal(scale=sig_p, size=6), rng.normal(scale=sig_t, size=6)])
-    p0, r0 = retract(scale0 * p_true, rot_true, dx0)
-    st = initial_state(p0, r0, sig_p, sig_t)
-    nees = []
-    for k in range(steps):
-        v, w = _motion(kind, k * DT_S)
-        p_true, rot_true = propagate(p_true, rot_true, v, w, DT_S)
-        noise_v = rng.normal(size=(3, 3)) * std[:, :1]
-        noise_w = rng.normal(size=(3, 3)) * std[:, 1:]
-        st = predict(st, v - noise_v, w - noise_w, DT_S, std)
-        beta = predicted_bearings(p_true, rot_true, EDGES)
-        t = tangent_basis(beta)
-        beta = beta + np.einsum("eka,ea->ek", t, rng.normal(scale=SIGMA_BEARING, size=(6, 2)))
-        beta /= np.linalg.norm(beta, axis=1, keepdims=True)
-        st, _ = update(st, EDGES, beta, SIGMA_BEARING, iterations)
-        err = local_difference(st.p_ref, st.rot_ref_body, p_true, rot_true)
-        nees.append(float(err @ np.linalg.solve(st.cov, err)))
-    return nees, st, p_true
-
 
 def test_nees_is_within_its_95_percent_chi_square_bounds_over_monte_carlo_runs():
     """Average NEES of 20 seeded runs against the two-sided 95% interval of chi2(20 * 12)/20.
@@ -267,7 +204,9 @@ def test_nees_is_within_its_95_percent_chi_square_bounds_over_monte_carlo_runs()
     is what ``bearingflock scenario ekf-se3`` measures.
     """
     runs, steps, dof = 20, 60, 12
-    nees = np.array([_run("exciting", seed, steps, 0.1, 0.05)[0] for seed in range(runs)])
+    nees = np.array(
+        [monte_carlo_run("exciting", seed, steps, 0.1, 0.05)[0] for seed in range(runs)]
+    )
     mean = nees.mean(axis=0)
     lo, hi = chi2.ppf([0.025, 0.975], runs * dof) / runs
     inside = np.mean((mean >= lo) & (mean <= hi))
@@ -281,7 +220,7 @@ def _scale_std(st: Se3EkfState) -> float:
 
 
 def _rank_report(kind: str):
-    v, w = _motion(kind, 0.3)
+    v, w = team_motion(kind, 0.3)
     p_w = P0_WORLD
     rot_w = np.tile(np.eye(3), (3, 1, 1))
     return observability_rank_report(p_w, rot_w, v, EDGES, w)
@@ -299,7 +238,7 @@ invisible to bearings: the first update stays linear, see the NEES test)."""
 
 
 def test_scale_is_recovered_with_exciting_inputs():
-    _, st, p_true = _run("exciting", 0, 200, *SCALE_PRIOR)
+    _, st, p_true = monte_carlo_run("exciting", 0, 200, *SCALE_PRIOR)
     assert abs(_scale_error(st, p_true)) < 0.02
     assert _scale_std(st) < 0.04  # prior 0.1 m along the scaling direction
     assert _rank_report("exciting").scale_observable
@@ -309,7 +248,7 @@ def test_scale_is_recovered_with_exciting_inputs():
 def test_scale_is_not_recovered_when_static_or_under_a_common_translation(kind):
     """The scale error stays near its 30% start and the covariance along the scaling direction
     at its prior, while every other direction is estimated; the DBOM rank agrees."""
-    _, st, p_true = _run(kind, 0, 200, *SCALE_PRIOR)
+    _, st, p_true = monte_carlo_run(kind, 0, 200, *SCALE_PRIOR)
     assert _scale_error(st, p_true) > 0.25
     s = scale_direction(st.p_ref)
     assert _scale_std(st) > 0.09
@@ -325,7 +264,7 @@ def test_plain_ekf_loses_the_scale_ambiguity_after_a_large_first_correction():
     """A known EKF inconsistency, kept visible: from a 0.5 m / 0.2 rad prior the first update
     moves the estimate far from its linearization point and the next one, linearized
     elsewhere, removes most of the variance along the (unobservable) scaling direction."""
-    _, st, _ = _run("static", 0, 20, 0.5, 0.2)
+    _, st, _ = monte_carlo_run("static", 0, 20, 0.5, 0.2)
     assert _scale_std(st) < 0.2  # of a prior of 0.5 m that no measurement informs
 
 
@@ -333,7 +272,9 @@ def test_iterated_update_is_consistent_from_a_far_prior():
     """The iterated EKF (update(iterations=3)) relinearizes at the estimate: from the same
     0.5 m / 0.2 rad prior its mean NEES is within the 95% bounds from the first step on."""
     runs, steps, dof = 10, 30, 12
-    nees = np.array([_run("exciting", seed, steps, iterations=3)[0] for seed in range(runs)])
+    nees = np.array(
+        [monte_carlo_run("exciting", seed, steps, iterations=3)[0] for seed in range(runs)]
+    )
     mean = nees.mean(axis=0)
     lo, hi = chi2.ppf([0.025, 0.975], runs * dof) / runs
     assert np.mean((mean >= lo) & (mean <= hi)) >= 0.9
