@@ -51,8 +51,9 @@ def test_default_speed_fits_the_fleet_in_the_machine():
     from groundstation.demo_cli import CPU_BUDGET, CPU_PER_AGENT, CPU_SIMULATOR, default_speedup
 
     assert default_speedup(6, 16) == 1.0  # a workstation: real time
-    two_cores = default_speedup(6, 2)
-    assert 0.2 <= two_cores < 1.0
-    assert (CPU_PER_AGENT * 6 + CPU_SIMULATOR) * two_cores <= CPU_BUDGET * 2 + 1e-9
+    assert default_speedup(6, 2) == 1.0  # an idle 2-core machine: real time (issue 29)
+    one_core = default_speedup(6, 1)  # the other one busy
+    assert 0.2 <= one_core < 1.0
+    assert (CPU_PER_AGENT * 6 + CPU_SIMULATOR) * one_core <= CPU_BUDGET * 1 + 1e-9
     assert default_speedup(30, 2) == 0.2  # never slower than the tried floor
     assert default_speedup(12, 4) <= default_speedup(6, 4)
