@@ -28,7 +28,8 @@ step, so its rate is the core's):
 4. **Publish** :class:`messages.peer.GradientLocalizationShare`: ``T_i``, ``R_i v_i`` and
    ``lambda_ij u_ij`` per out-edge with a fresh bearing.
 
-A step that would make the state non-finite is not taken (counted ``nonfinite``); a share
+A step that would make the state non-finite is not taken (counted ``nonfinite``), an own
+velocity beyond :data:`messages.limits.SPEED_MAX_M_S` is not used (``nonfinite_own``); a share
 that is non-finite or beyond :mod:`messages.limits` (a core fed without the codec) is counted
 ``malformed`` and dropped, an entry for an edge this agent does not have ``unknown_edge``.
 ``T_i`` replaces paper 000's ``phat_i`` for the formation laws (:attr:`Scale.pose`) and the
@@ -138,6 +139,9 @@ class GradientLocalization:
         t_s, dt = own.t_s, own.dt_s
         yaw = self.yaw_hat_rad
         v_i = rotz(yaw, own.v_body)
+        if not _within(v_i, SPEED_MAX_M_S):  # beyond what a share may carry: not flown on
+            self._drops.count(DropReason.NONFINITE_OWN)
+            v_i = (0.0, 0.0, 0.0)
         t_i = self.t_ned
         t_i = (t_i[0] + dt * v_i[0], t_i[1] + dt * v_i[1], t_i[2] + dt * v_i[2])
         lam = dict(self.lam)
