@@ -158,13 +158,15 @@ def write_demo_files(
     loss: float = 0.0,
     rigidity: bool = True,
     sitl_instance: int | None = None,
+    localization: str = "paper000",
 ) -> Path:
     """Formation, start layout and fleet files for the simulator and the daemons; ``loss`` is
     the fraction of peer messages every daemon drops on purpose (``zenoh.inject_loss``),
     ``rigidity`` turns paper 003's rigidity maintenance on (``[rigidity] maintenance``; never
     for fewer than 4 vehicles, see ``onboard.daemon.config.MIN_MAINTENANCE_AGENTS``).
     ``sitl_instance``: the daemons dial ArduCopter SITL instances ``sitl_instance + id`` (TCP
-    SERIAL0, 10 ports apart) instead of the simulator's UDP ports."""
+    SERIAL0, 10 ports apart) instead of the simulator's UDP ports. ``localization``: the
+    ``[core] localization`` the daemons fly on (written only when not the default)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "formation.toml").write_text(
         _formation_toml(plan.p_ned, plan.yaw_rad, plan.edges, "demo")
@@ -207,6 +209,11 @@ def write_demo_files(
                 f"lambda_safe = {lam_safe:.6g}",
                 f"lambda_min = {LAMBDA_MIN_FRACTION * lam_safe:.6g}",
                 "",
+                *(
+                    []
+                    if localization == "paper000"
+                    else ["[core]", f'localization = "{localization}"', ""]
+                ),
             ]
         )
     )
@@ -485,8 +492,12 @@ def run_demo(
     record: bool = True,
     dynamics: str = "ideal",
     secure: bool = False,
+    localization: str = "paper000",
 ) -> dict[str, Any]:
     """Run the whole mission (module docstring) and return its summary.
+
+    ``localization``: the fleet file's ``[core] localization`` (``"paper002"``: paper 002's
+    distributed gradient localization, docs/distributed.md).
 
     ``record``: the ground station's recording of the run goes to ``out/recording.mcap``
     (every Zenoh sample of the fleet, Foxglove's scene of the team) and ``out/recording.tlog``
@@ -535,7 +546,9 @@ def run_demo(
     # the rigidity layer's sensing model is one camera cone; rendered rigs (a forward camera or
     # a ring of them) are not modelled yet, so camera bearings fly without the maintenance
     rigidity = rigidity and bearings == "sim"
-    fleet_path = write_demo_files(out, plan, ports, fleet, mode, loss, rigidity, instance)
+    fleet_path = write_demo_files(
+        out, plan, ports, fleet, mode, loss, rigidity, instance, localization=localization
+    )
     secure_args: list[str] = []
     if secure:
         from messages.fleetkeys import init_fleet

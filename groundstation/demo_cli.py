@@ -342,6 +342,13 @@ def demo(
             "security.dir, a simulator that rejects unsigned messages.",
         ),
     ] = False,
+    localization: Annotated[
+        str,
+        typer.Option(
+            help="The fleet file's [core] localization: paper000 (paper 000's filter) or "
+            "paper002 (paper 002's distributed gradient localization, docs/distributed.md).",
+        ),
+    ] = "paper000",
     headless: Annotated[
         bool,
         typer.Option(
@@ -398,7 +405,11 @@ def demo(
         )
         raise typer.Exit(2)
     from messages.optional import require
-    from messages.vocabulary import MODES
+    from messages.vocabulary import LOCALIZATIONS, MODES
+
+    if localization not in LOCALIZATIONS:
+        typer.echo(f"error: --localization must be one of {', '.join(LOCALIZATIONS)}", err=True)
+        raise typer.Exit(2)
 
     # the plots, the recording and the camera pipeline: a missing extra says so before the run
     for module in ("matplotlib", "mcap", *(("cv2",) if bearings == "camera" else ())):
@@ -409,7 +420,7 @@ def demo(
         raise typer.Exit(2)
     if headless:  # writes summary.json into --out when given (it used to write nothing)
         out_dir = _writable_out(out) if out is not None else None
-        _headless(vehicles, seed, duration, mode, loss, json, rigidity, out_dir)
+        _headless(vehicles, seed, duration, mode, loss, json, rigidity, out_dir, localization)
         return
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     cores = cores or 1
@@ -473,7 +484,7 @@ def demo(
                 render_rate_hz=render_rate, loss=loss, rigidity=rigidity, autopilot=autopilot,
                 sitl=sitl, sitl_sensors=sitl_sensors, sitl_params=tuple(sitl_param or ()),
                 dynamics=dynamics,
-                secure=secure,
+                secure=secure, localization=localization,
             )  # fmt: skip
     except KeyboardInterrupt:
         console.print("[yellow]interrupted: every process was stopped[/yellow]")
@@ -540,6 +551,7 @@ def _headless(
     json: bool,
     rigidity: bool,
     out_dir: Path | None = None,
+    localization: str = "paper000",
 ):
     from rich.progress import Progress
 
@@ -550,7 +562,7 @@ def _headless(
         task = bar.add_task(f"headless mission, {vehicles} vehicles, {duration:.0f} s", total=1.0)
         summary, _ = headless_demo(
             vehicles, seed, duration, mode=mode, loss=loss, rigidity=rigidity,
-            progress=lambda f: bar.update(task, completed=f),
+            progress=lambda f: bar.update(task, completed=f), localization=localization,
         )  # fmt: skip
     summary["headless"] = True
     if out_dir is not None:

@@ -48,8 +48,10 @@ def headless_demo(
     camera_latency_s: float = 0.0,
     rigidity: bool = True,
     progress: Callable[[float], None] | None = None,
+    localization: str = "paper000",
 ) -> tuple[dict[str, Any], Recording]:
-    """Fly the demo's mission headless; returns ``(summary, recording)``."""
+    """Fly the demo's mission headless; returns ``(summary, recording)``. ``localization``
+    is the fleet file's ``[core] localization``."""
     plan = plan_formation(vehicles, seed)
     with tempfile.TemporaryDirectory() as tmp:
         ports = DemoPorts(zenoh=7447, mavlink=14540, gcs=14550)  # written, never opened
@@ -61,6 +63,7 @@ def headless_demo(
                 "headless",
                 mode,
                 rigidity=rigidity,
+                localization=localization,
             )
         )
         configs = [agent_config(fleet, i) for i in range(vehicles)]

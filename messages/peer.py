@@ -81,10 +81,20 @@ class ConsensusEntry(Entry):
     z: _Values
 
 
+class ScaledBearing(Entry):
+    """Paper 002's ``lambda_ij u_ij`` of the sender's out-edge ``(sender, target)``: its scale
+    ``lambda_ij`` times its world bearing ``u_ij = R_z(psi_i) beta_ij`` in the shared estimated
+    frame (m)."""
+
+    target: AgentId
+    w_ned: PositionVec3
+
+
 _TargetBearings = Annotated[list[TargetBearing], msgspec.Meta(max_length=LIST_MAX)]
 _SfmEdges = Annotated[list[SfmEdgeEstimate], msgspec.Meta(max_length=LIST_MAX)]
 _EdgeExcitations = Annotated[list[EdgeExcitation], msgspec.Meta(max_length=LIST_MAX)]
 _ConsensusEntries = Annotated[list[ConsensusEntry], msgspec.Meta(max_length=LIST_MAX)]
+_ScaledBearings = Annotated[list[ScaledBearing], msgspec.Meta(max_length=LIST_MAX)]
 
 
 class MotionShare(Payload, tag="peer.motion"):
@@ -128,6 +138,17 @@ class LocalizationState(Payload, tag="peer.localization"):
     yaw_hat_rad: Angle
 
 
+class GradientLocalizationShare(Payload, tag="peer.gradloc"):
+    """Paper 002's distributed localization state of the sender (eq. 16-17 and 22,
+    :mod:`onboard.core.localization002`): its translation ``T_i`` and velocity in the shared
+    estimated frame (receivers carry ``T_i`` to their own time with it), and ``lambda_ij u_ij``
+    per out-edge: what a neighbour needs for the gradient of the edges it shares with it."""
+
+    t_ned: PositionVec3
+    v_ned: SpeedVec3
+    edges: _ScaledBearings
+
+
 class ConsensusState(Payload, tag="peer.consensus"):
     """States of the sender's PI average-consensus estimators, one entry per named quantity
     (Freeman, Yang, Lynch 2006; ACE blocks of paper 000 fig. 1)."""
@@ -142,6 +163,7 @@ PeerPayload = (
     | ExcitationTable
     | LocalizationState
     | ConsensusState
+    | GradientLocalizationShare
     | AngleLocalizationShare
     | RigidityEigenShare
 )

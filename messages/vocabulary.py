@@ -26,6 +26,12 @@ FleetMode = Literal["active", "random", "formation", "formation-active", "hold"]
 """The modes a fleet file's ``mode`` may name (paper 003's maintenance is its ``[rigidity]``
 table on top of one of them, not a mode of its own)."""
 FLEET_MODES: tuple[FleetMode, ...] = typing.get_args(FleetMode)
+Localization = Literal["paper000", "paper002"]
+"""Which estimate of the team's positions the core flies on (a fleet file's ``[core]
+localization``): paper 000's filter (eq. 6, :mod:`onboard.estimation.localization`) or paper
+002's distributed gradient localization with one SfM range per reciprocal edge (eq. 16-17 and
+22, :mod:`onboard.core.localization002`)."""
+LOCALIZATIONS: tuple[Localization, ...] = typing.get_args(Localization)
 
 
 class Phase(StrEnum):

@@ -35,6 +35,7 @@ from messages.peer import (
     BearingShare,
     ConsensusState,
     ExcitationTable,
+    GradientLocalizationShare,
     LocalizationState,
     MotionShare,
     SfmEstimate,
@@ -221,6 +222,7 @@ PAYLOAD_KINDS: dict[type, int] = {
     BearingShare: draws.KIND_BEARING,
     AngleLocalizationShare: draws.KIND_ANGLE_LOCALIZATION,
     RigidityEigenShare: draws.KIND_RIGIDITY_EIGEN,
+    GradientLocalizationShare: draws.KIND_GRADIENT_LOCALIZATION,
 }
 """The loss stream's word for each payload type (:func:`sim.draws.lost`): a copy's fate
 depends on what it is, not on the order the engine sends it in."""
@@ -425,7 +427,7 @@ def _record(
     y = np.asarray(yaw)
     rec.v_ned[r] = np.einsum("nij,nj->ni", rot_z(y), np.asarray(v_body))
     for i, core in enumerate(cores):
-        loc = core.localization
+        loc = core.pose
         rec.p_hat_ned[r, i] = loc.p_hat_ned
         rec.yaw_hat_rad[r, i] = loc.yaw_hat_rad
         rec.lambda_bar_est[r, i] = core.lambda_bar

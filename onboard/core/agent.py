@@ -30,6 +30,7 @@ from messages.peer import (
     BearingShare,
     ConsensusState,
     ExcitationTable,
+    GradientLocalizationShare,
     LocalizationState,
     MotionShare,
     SfmEstimate,
@@ -42,6 +43,7 @@ from onboard.core.layer import Command, Own, Vec3
 from onboard.core.modes import compose
 from onboard.core.motion import FloatArray, Formation
 from onboard.core.peers import Drops, PeerTable, Route
+from onboard.core.scale import Pose
 from onboard.estimation.localization import LocalizationFilter
 
 OUTBOX_ORDER: tuple[type, ...] = (
@@ -53,6 +55,7 @@ OUTBOX_ORDER: tuple[type, ...] = (
     ConsensusState,
     MotionShare,
     LocalizationState,
+    GradientLocalizationShare,
 )
 """The peer payload kinds, in the order a step's outbox lists them (at most one of each per
 step): a lossy link drops them in a reproducible order whatever the layers' order."""
@@ -95,6 +98,8 @@ class AgentCore:
         """Paper 000's scale estimation (``None`` in ``rigidity-tracking``)."""
         self.controller = comp.controller
         self.rigidity = comp.rigidity
+        self.gradient_localization = comp.gradient_localization
+        """Paper 002's localization layer (``None`` unless ``localization = "paper002"``)."""
         """Paper 003's rigidity layer (``None`` unless the mode or maintenance needs it)."""
         self.rigidity_neighbours: frozenset[int] = (
             frozenset() if self.rigidity is None else frozenset(self.rigidity.neighbours)
@@ -116,6 +121,12 @@ class AgentCore:
         """Paper 000's localization filter (eq. 6); without the scale layer, the prior (angle
         localization's estimate is ``rigidity.loc``)."""
         return self._prior if self.scale is None else self.scale.localization
+
+    @property
+    def pose(self) -> Pose:
+        """The position estimate the core flies on: :attr:`localization`, or paper 002's
+        (:mod:`onboard.core.localization002`) when selected."""
+        return self._prior if self.scale is None else self.scale.pose
 
     @property
     def lambda_bar(self) -> float:

@@ -5,7 +5,8 @@ Each layer of :mod:`onboard.core` takes only the group(s) it needs: the bearings
 table take :class:`Graph` and :class:`Safety`, paper 000's scale estimation
 (:mod:`onboard.core.scale`) :class:`ScaleGains`, the motion laws (:mod:`onboard.core.motion`)
 :class:`ActiveGains` and :class:`FormationGains`, paper 003's rigidity maintenance
-(:mod:`onboard.core.rigidity`) :class:`RigidityGains`.
+(:mod:`onboard.core.rigidity`) :class:`RigidityGains`, paper 002's distributed localization
+(:mod:`onboard.core.localization002`) :class:`GradientLocalizationGains`.
 
 Field names are unique across the groups, so a flat ``name=value`` (a sweep parameter, a scenario
 override) still names one field: :func:`build_config` and :func:`replace_fields` route them to
@@ -19,7 +20,7 @@ from typing import Any, Literal
 
 import msgspec
 
-from messages.vocabulary import MODES, Mode
+from messages.vocabulary import LOCALIZATIONS, MODES, Localization, Mode
 
 Vec3 = tuple[float, float, float]
 
@@ -218,6 +219,30 @@ class RigidityGains(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     angle localization and the eigen-estimate converge before the team moves."""
 
 
+class GradientLocalizationGains(msgspec.Struct, frozen=True, kw_only=True,
+                                forbid_unknown_fields=True):  # fmt: skip
+    """Which localization the core flies on, and paper 002's (eq. 16-17 and 22) gains."""
+
+    localization: Localization = "paper000"
+    """``"paper002"``: the distributed gradient localization layer
+    (:class:`onboard.core.localization002.GradientLocalization`) runs after the scale layer and
+    its ``T_i`` replaces paper 000's ``phat_i`` for the controllers and the status (paper 000's
+    filter still runs: its yaw is the known rotation). Needs the scale layer."""
+    gradloc_range_weight: float = 1.0
+    """``w`` of ``f_D(x) = w x^2`` (eq. 22) on the edges with an SfM distance: the relative
+    weight of a range against a bearing residual (both in metres)."""
+
+    def __post_init__(self) -> None:
+        if self.localization not in LOCALIZATIONS:
+            raise ValueError(
+                f"unknown localization {self.localization!r}; choose from "
+                f"{', '.join(LOCALIZATIONS)}"
+            )
+        if not (self.gradloc_range_weight > 0.0 and self.gradloc_range_weight < 1e6):
+            raise ValueError(f"gradloc_range_weight must be in (0, 1e6), got "
+                             f"{self.gradloc_range_weight}")  # fmt: skip
+
+
 class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Everything one agent core needs: its mode and one group per layer."""
 
@@ -229,6 +254,7 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     active: ActiveGains = ActiveGains()
     formation: FormationGains = FormationGains()
     rigidity: RigidityGains = RigidityGains()
+    gradloc: GradientLocalizationGains = GradientLocalizationGains()
 
     def __post_init__(self) -> None:
         _check_edges(self.rigidity.rigidity_edges, self.graph.n_agents)
@@ -236,6 +262,10 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             raise ValueError(f"unknown mode {self.mode!r}; choose from {', '.join(MODES)}")
         if self.mode in ("formation", "formation-active") and not self.formation.desired_beta_body:
             raise ValueError(f"mode {self.mode!r} needs desired_beta_body")
+        if self.gradloc.localization == "paper002" and self.mode == "rigidity-tracking":
+            raise ValueError(
+                "localization 'paper002' needs the scale layer (not rigidity-tracking)"
+            )
 
 
 def _check_edges(edges: tuple[tuple[int, int], ...], n: int) -> None:
@@ -251,6 +281,7 @@ GROUPS: dict[str, type[msgspec.Struct]] = {
     "active": ActiveGains,
     "formation": FormationGains,
     "rigidity": RigidityGains,
+    "gradloc": GradientLocalizationGains,
 }
 """The groups of :class:`AgentConfig`, by attribute name."""
 FIELD_GROUP: dict[str, str] = {

@@ -4,7 +4,9 @@ builds a core's layers from its configuration (each layer gets only its own grou
 Every mode has the camera layer; paper 000's modes add its scale estimation and one motion law;
 ``rigidity-tracking`` (paper 003) is the rigidity layer alone, which is then also the position
 estimate. ``rigidity_maintenance`` appends the rigidity layer to any other mode, its actions
-added to the motion law's.
+added to the motion law's. ``localization = "paper002"`` inserts paper 002's distributed
+localization (:mod:`onboard.core.localization002`) right after the scale layer; its estimate
+becomes the scale layer's :attr:`~onboard.core.scale.Scale.pose`.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from messages.vocabulary import Mode
 from onboard.core.bearings import Bearings
 from onboard.core.config import AgentConfig
 from onboard.core.layer import Layer
+from onboard.core.localization002 import GradientLocalization
 from onboard.core.motion import Active, Formation, FormationActive, Hold, Random
 from onboard.core.peers import Drops, PeerTable
 from onboard.core.rigidity import RigidityLayer
@@ -36,6 +39,8 @@ class LayerKind(Enum):
     FORMATION = "formation"
     FORMATION_ACTIVE = "formation-active"
     RIGIDITY = "rigidity"
+    GRADIENT_LOCALIZATION = "gradient-localization"
+    """Paper 002's localization (eq. 16-17, 22), after the scale layer when selected."""
 
 
 L = LayerKind
@@ -54,6 +59,11 @@ MODE_LAYERS: dict[Mode, tuple[LayerKind, ...]] = {
 def layer_kinds(config: AgentConfig) -> tuple[LayerKind, ...]:
     """The layers a core with ``config`` composes, in stepping order."""
     kinds = MODE_LAYERS[config.mode]
+    if config.gradloc.localization == "paper002":
+        at = next((k + 1 for k, x in enumerate(kinds) if x in (L.SCALE, L.SCALE_ROTATION)), None)
+        if at is None:
+            raise ValueError(f"localization 'paper002' needs the scale layer ({config.mode})")
+        kinds = (*kinds[:at], L.GRADIENT_LOCALIZATION, *kinds[at:])
     if config.rigidity.rigidity_maintenance and L.RIGIDITY not in kinds:
         kinds = (*kinds, L.RIGIDITY)
     return kinds
@@ -67,6 +77,7 @@ class Composition(msgspec.Struct):
     scale: Scale | None = None
     controller: Hold | Random | Active | Formation | None = None
     rigidity: RigidityLayer | None = None
+    gradient_localization: GradientLocalization | None = None
 
 
 def compose(config: AgentConfig, peers: PeerTable, drops: Drops) -> Composition:
@@ -87,6 +98,12 @@ def compose(config: AgentConfig, peers: PeerTable, drops: Drops) -> Composition:
         if kind in (L.SCALE, L.SCALE_ROTATION):
             layer = comp.scale = Scale(g, config.scale, peers, bearings, reciprocal, drops,
                                        rotation_terms=kind is L.SCALE_ROTATION)  # fmt: skip
+        elif kind is L.GRADIENT_LOCALIZATION:
+            assert comp.scale is not None  # layer_kinds puts it after the scale layer
+            layer = comp.gradient_localization = GradientLocalization(
+                g, config.gradloc, peers, bearings, comp.scale, drops
+            )
+            comp.scale.pose = layer
         elif kind is L.RIGIDITY:
             sc = comp.scale
             layer = comp.rigidity = RigidityLayer(

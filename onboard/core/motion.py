@@ -198,7 +198,7 @@ class FormationActive(Formation):
         # past it only stores error (with delayed lambdabar it ran away to 1e35 otherwise)
         self.w_l = max(-g.w_l_max_rad_s, min(g.w_l_max_rad_s, self.w_l + dt * dw))
         sc.share("w_l", [self.w_l], [])
-        loc = sc.localization
+        loc = sc.pose
         n3 = act.rotation_velocity_body(loc.p_hat_ned, loc.yaw_hat_rad, sc.p_bar)
         wl = self.w_l
         return Command((u_f[0] + wl * n3[0], u_f[1] + wl * n3[1], u_f[2] + wl * n3[2]), w_f + wl)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any
+from typing import Any, Protocol
 
 from messages.codec import Payload
 from messages.limits import STAMP_FUTURE_MAX_S
@@ -56,6 +56,16 @@ CONSENSUS_NAMES = frozenset({"e_index", "p_bar", "dlam_dwl", "w_l"})
 """The quantities agents run consensus on (:class:`messages.peer.ConsensusState` names): any
 other name from a neighbour is counted (``unknown_name``) and dropped, so a neighbour cannot
 grow a receiver's tables (issue 23: 45,000 names per payload took a daemon to 650 MB)."""
+
+
+class Pose(Protocol):
+    """A position and yaw estimate in the team's shared estimated frame."""
+
+    @property
+    def p_hat_ned(self) -> Vec3: ...
+
+    @property
+    def yaw_hat_rad(self) -> float: ...
 
 
 def _keep(j: int, msg: Any) -> bool:
@@ -94,6 +104,9 @@ class Scale:
         self.localization = LocalizationFilter(
             graph.p0(me), graph.yaw0(me), gains.k_loc_bearing, gains.k_loc_distance
         )
+        self.pose: Pose = self.localization
+        """The estimate the formation laws and ``pbar`` use: paper 000's filter, or paper 002's
+        localization layer when the fleet selects it (:func:`onboard.core.modes.compose`)."""
         self.sfm: dict[int, SfmEdge] = {}
         for j in self.running:
             d0 = math.dist(graph.p0(me), graph.p0(j)) if graph.p_hat0_ned else 1.0
@@ -364,7 +377,7 @@ class Scale:
         self.e_index = max(n * x[0], 0.0)
         if not self.rotation_terms:
             return
-        loc = self.localization
+        loc = self.pose
         pb = self._consensus_step("p_bar", dt, t_s, list(loc.p_hat_ned))
         self.p_bar = (pb[0], pb[1], pb[2])
         grad = act.lambda_bar_gradient(self.excitation_terms(), self.lambda_bar, g.p_norm)

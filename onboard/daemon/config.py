@@ -59,6 +59,11 @@
                                       # out of view or range) or "formation" (its edges only)
     rate_hz = 20.0                    # the layer's steps (a slow outer loop), <= rates.core
 
+    [core]                            # the agent core's estimators
+    localization = "paper000"         # the position estimate it flies on: paper 000's filter
+                                      # (eq. 6) or "paper002", paper 002's distributed gradient
+                                      # localization (eq. 16-17, 22; docs/distributed.md)
+
     [sfm]                             # the SfM observers against a biased odometry (0: off,
                                       # paper 000's observer; onboard/core/config.py AgentConfig)
     bias_speed_m_s = 0.1              # no scale correction below this speed across a bearing
@@ -106,7 +111,7 @@ import msgspec
 from messages.formation import Formation, FormationError, load_formation
 from messages.keys import key
 from messages.transport import ZenohSettings, check_endpoint, loopback_endpoint, with_mutual_tls
-from messages.vocabulary import FleetMode
+from messages.vocabulary import FleetMode, Localization
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
@@ -178,6 +183,12 @@ class SfmSection(msgspec.Struct, forbid_unknown_fields=True):
     folds_forget_s: float = 0.0
 
 
+class CoreSection(msgspec.Struct, forbid_unknown_fields=True):
+    """The agent core's choice of estimators (onboard/core/config.py GradientLocalizationGains)."""
+
+    localization: Localization = "paper000"
+
+
 class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
     files: list[str] = msgspec.field(default_factory=list)
     markers: str = ""
@@ -206,6 +217,7 @@ class FleetConfig(msgspec.Struct, forbid_unknown_fields=True):
     rigidity: RigiditySection = msgspec.field(default_factory=RigiditySection)
     camera: CameraSection = msgspec.field(default_factory=CameraSection)
     sfm: SfmSection = msgspec.field(default_factory=SfmSection)
+    core: CoreSection = msgspec.field(default_factory=CoreSection)
     security: SecuritySection = msgspec.field(default_factory=SecuritySection)
 
 

@@ -48,6 +48,7 @@ from onboard.core.agent import AgentCore
 from onboard.core.config import (
     AgentConfig,
     FormationGains,
+    GradientLocalizationGains,
     Graph,
     RigidityGains,
     Safety,
@@ -154,7 +155,8 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
         v_max_m_s=c.limits.max_speed_m_s, yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s
     )
     return AgentConfig(graph=graph, mode=c.mode, safety=safety, scale=scale,
-                       formation=formation, rigidity=rigidity)  # fmt: skip
+                       formation=formation, rigidity=rigidity,
+                       gradloc=GradientLocalizationGains(localization=c.core.localization))  # fmt: skip
 
 
 def _finite_within(x: float | None, limit: float) -> bool:

@@ -10,7 +10,13 @@ import msgspec
 import pytest
 
 from messages.agent import OwnMeasurements
-from messages.peer import BearingShare, ConsensusState, LocalizationState, MotionShare
+from messages.peer import (
+    BearingShare,
+    ConsensusState,
+    GradientLocalizationShare,
+    LocalizationState,
+    MotionShare,
+)
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 from onboard.core.agent import OUTBOX_ORDER, AgentCore
 from onboard.core.bearings import Bearings
@@ -127,6 +133,8 @@ PAPER_DEFAULTS = {
     "eigen_k_n": 0.2, "rigidity_period_s": 0.0, "rigidity_warmup_s": 0.0,
 }  # fmt: skip
 """The flat configuration's defaults before it was split into groups (issue 21)."""
+ADDED_DEFAULTS = {"localization": "paper000", "gradloc_range_weight": 1.0}
+"""Fields added since (issue 25: paper 002's localization, off by default)."""
 
 
 def test_the_groups_keep_every_name_and_default_of_the_flat_config() -> None:
@@ -134,8 +142,9 @@ def test_the_groups_keep_every_name_and_default_of_the_flat_config() -> None:
     got = {name: getattr(getattr(cfg, group), name) for name, group in FIELD_GROUP.items()}
     structural = {"agent_id", "n_agents", "edges", "p_hat0_ned", "yaw_hat0_rad",
                   "desired_beta_body", "desired_yaw_rad", "rigidity_edges"}  # fmt: skip
-    assert set(got) == set(PAPER_DEFAULTS) | structural
+    assert set(got) == set(PAPER_DEFAULTS) | set(ADDED_DEFAULTS) | structural
     assert {k: got[k] for k in PAPER_DEFAULTS} == PAPER_DEFAULTS
+    assert {k: got[k] for k in ADDED_DEFAULTS} == ADDED_DEFAULTS
     assert cfg.mode == "active"
 
 
@@ -179,7 +188,13 @@ def test_a_composition_takes_and_publishes_only_its_layers_kinds() -> None:
             assert core.chi_hat(1) is None and core.lambda_bar == 0.0 and core.w_l == 0.0
             assert not core.scale_converged()
         else:
-            assert taken == set(OUTBOX_ORDER) - rigid and core.rigidity is None
+            assert taken == set(OUTBOX_ORDER) - rigid - {GradientLocalizationShare}
+            assert core.rigidity is None
+            p002 = _core(mode, localization="paper002")  # paper 002's localization on top
+            p002_taken = {k for k, r in p002.peers.routes.items() if r.take is not None}
+            assert p002_taken == taken | {GradientLocalizationShare}
+            p002_out = [type(m) for m in p002.step(0.0, own)[1]]
+            assert p002_out[-2:] == [LocalizationState, GradientLocalizationShare]
         assert set(core.peers.routes) == set(OUTBOX_ORDER)  # the rest: counted unknown_type
         _, out = core.step(0.0, own)
         kinds = [type(m) for m in out]
