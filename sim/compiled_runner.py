@@ -91,6 +91,11 @@ def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
             raise ValueError(f"the compiled engine has no mode {c.mode!r}; use engine 'cores'")
         if c.rigidity.rigidity_maintenance:
             raise ValueError("the compiled engine has no rigidity layer; use engine 'cores'")
+        if c.gradloc.localization != "paper000":
+            raise ValueError(
+                f"the compiled engine flies paper 000's localization, not "
+                f"{c.gradloc.localization!r}; use engine 'cores'"
+            )
         s = c.scale
         safeguards = (s.sfm_bias_speed_m_s, s.sfm_folds_forget_s, s.sfm_wander_max)
         if any(x != 0.0 for x in safeguards):

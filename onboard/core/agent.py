@@ -98,9 +98,9 @@ class AgentCore:
         """Paper 000's scale estimation (``None`` in ``rigidity-tracking``)."""
         self.controller = comp.controller
         self.rigidity = comp.rigidity
+        """Paper 003's rigidity layer (``None`` unless the mode or maintenance needs it)."""
         self.gradient_localization = comp.gradient_localization
         """Paper 002's localization layer (``None`` unless ``localization = "paper002"``)."""
-        """Paper 003's rigidity layer (``None`` unless the mode or maintenance needs it)."""
         self.rigidity_neighbours: frozenset[int] = (
             frozenset() if self.rigidity is None else frozenset(self.rigidity.neighbours)
         )

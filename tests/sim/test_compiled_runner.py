@@ -128,6 +128,7 @@ def test_the_first_step_changes_nothing_and_truth_is_recorded() -> None:
         (RunnerConfig(duration_s=0.1, camera_latency_s=0.02), {}, "camera_latency_s"),
         (RunnerConfig(duration_s=0.1), {"rigidity_maintenance": True}, "rigidity layer"),
         (RunnerConfig(duration_s=0.1, latency_s=1.0), {}, "latency"),
+        (RunnerConfig(duration_s=0.1), {"localization": "paper002"}, "'paper002'"),
     ],
 )
 def test_unsupported_options_are_refused(runner, overrides, message) -> None:
