@@ -704,15 +704,22 @@ def estimate(
     silent_s: Annotated[
         float, typer.Option(help="Live: drop a vehicle silent for this long (s).")
     ] = 3.0,
+    plot: Annotated[
+        Path | None,
+        typer.Option("--plot", help="Replay: write the EKF's figures (PNG) into this directory."),
+    ] = None,
 ) -> None:
     """Paper 001's centralized EKF on the team's bearings and odometry (issue 26). Live (over
     Zenoh): a table of its scale and each vehicle's pose beside the daemons' own estimates, an
     alarm when they disagree; --json prints the summary at the end. --replay FILE.mcap: final
-    scale and, with truth in the recording, each vehicle's pose error."""
+    scale and, with truth in the recording, each vehicle's pose error (--plot DIR: distances,
+    scale error and uncertainty over time)."""
     import math
 
     if not (math.isfinite(bearing_noise_deg) and bearing_noise_deg > 0):
         raise _fail("--bearing-noise-deg must be a positive number")
+    if plot is not None and replay is None:
+        raise _fail("--plot needs --replay FILE.mcap")
     if replay is None:
         _estimate_live(
             fleet, zenoh, zenoh_listen, keys, duration, json, bearing_noise_deg,
@@ -726,6 +733,14 @@ def estimate(
         replay, ReplayConfig(bearing_sigma_rad=math.radians(bearing_noise_deg))
     )
     summary = result.summary()
+    if plot is not None and result.state is not None:
+        from groundstation.gcs.plot import plot_ekf_replay
+
+        try:
+            plot.mkdir(parents=True, exist_ok=True)
+            summary["plots"] = [str(p) for p in plot_ekf_replay(result, plot)]
+        except OSError as exc:
+            raise _fail(f"cannot write the plots to {plot}: {exc.strerror or exc}") from None
     if json:
         typer.echo(jsonlib.dumps(summary))
     else:

@@ -38,6 +38,21 @@ from onboard.geometry import FloatArray, rot_z
 ReplayConfig = EkfLoopConfig
 """Filter settings for a replay (the loop's; membership is fixed: nobody is dropped)."""
 
+HISTORY_PERIOD_S = 0.1
+"""The estimate is kept for ``gcs estimate --plot`` at most this often (recording time)."""
+
+
+@dataclass(frozen=True)
+class EstimateSample:
+    """The estimate after one update: for the replay's figures."""
+
+    t_s: float
+    p_ref_m: FloatArray
+    """``(N, 3)`` every vehicle's position in the reference's frame (the reference's is 0)."""
+    sigma_p_m: FloatArray
+    """``(N,)`` 1-sigma position radius, ``sqrt(trace)`` of its 3x3 covariance block (0 for the
+    reference)."""
+
 
 @dataclass
 class ReplayResult:
@@ -51,6 +66,22 @@ class ReplayResult:
     truth: dict[int, tuple[FloatArray, float]] = field(default_factory=dict)
     truth_age_s: float = 0.0
     """Largest time between the final estimate and the truth sample compared with it."""
+    history: list[EstimateSample] = field(default_factory=list)
+    """The estimate every :data:`HISTORY_PERIOD_S` (for the figures)."""
+    truth_log: dict[int, list[tuple[float, FloatArray, float]]] = field(default_factory=dict)
+    """Every truth sample of the recording: ``(stamp_s, p_ned, yaw_rad)`` per vehicle."""
+
+    def true_distances(self, t_s: float) -> FloatArray | None:
+        """``(P,)`` true pairwise distances (pairs as :meth:`pairs`) from the truth samples
+        nearest ``t_s``; ``None`` without truth for every vehicle."""
+        if not all(self.truth_log.get(i) for i in self.ids):
+            return None
+        p = np.array([min(self.truth_log[i], key=lambda s: abs(s[0] - t_s))[1] for i in self.ids])
+        return np.array([np.linalg.norm(p[a] - p[b]) for a, b in self.pairs()])
+
+    def pairs(self) -> list[tuple[int, int]]:
+        """Index pairs ``(a, b)``, ``a < b``, into :attr:`ids`."""
+        return [(a, b) for a in range(len(self.ids)) for b in range(a + 1, len(self.ids))]
 
     def summary(self) -> dict[str, object]:
         """``--json``: per-vehicle estimate in the reference's frame, distances, errors."""
@@ -65,7 +96,7 @@ class ReplayResult:
             return out
         p_all = np.vstack([np.zeros((1, 3)), self.state.p_ref])
         out["p_ref_m"] = {str(i): [float(x) for x in p_all[k]] for k, i in enumerate(self.ids)}
-        pairs = [(a, b) for a in range(len(self.ids)) for b in range(a + 1, len(self.ids))]
+        pairs = self.pairs()
         d_est = np.array([np.linalg.norm(p_all[a] - p_all[b]) for a, b in pairs])
         out["distances_m"] = {
             f"{self.ids[a]}-{self.ids[b]}": float(d) for (a, b), d in zip(pairs, d_est, strict=True)
@@ -98,6 +129,16 @@ class ReplayResult:
         return (p - p[0]) @ r0, yaw - yaw[0]
 
 
+def _sample(t_s: float, state: Se3EkfState) -> EstimateSample:
+    m = len(state.p_ref)
+    var = np.diagonal(state.cov)[: 3 * m].reshape(m, 3).sum(axis=1)
+    return EstimateSample(
+        t_s,
+        np.vstack([np.zeros((1, 3)), state.p_ref]),
+        np.concatenate([[0.0], np.sqrt(np.maximum(var, 0.0))]),
+    )
+
+
 def _count(counts: dict[str, int], word: str) -> None:
     counts[word] = counts.get(word, 0) + 1
 
@@ -124,7 +165,7 @@ def replay_estimate(path: str | Path, cfg: ReplayConfig | None = None) -> Replay
                 (payload.stamp_s, np.array(payload.p_ned, dtype=float), float(payload.yaw_rad))
             )
     ids = sorted({m.sender for m in motions})
-    result = ReplayResult(ids=ids, state=None, counts=counts)
+    result = ReplayResult(ids=ids, state=None, counts=counts, truth_log=truth_log)
     if len(ids) < 2:
         _count(counts, "fewer_than_2_vehicles_with_odometry")
         return result
@@ -135,8 +176,10 @@ def replay_estimate(path: str | Path, cfg: ReplayConfig | None = None) -> Replay
     for _, _, sample in stream:
         if isinstance(sample, MotionShare):
             loop.add_motion(sample)
-        else:
-            loop.add_frame(sample)
+        elif loop.add_frame(sample) and loop.state is not None and loop.t_s is not None:
+            last = result.history[-1].t_s if result.history else -math.inf
+            if loop.t_s - last >= HISTORY_PERIOD_S:
+                result.history.append(_sample(loop.t_s, loop.state))
     for word, k in loop.counts.items():
         counts[word] = counts.get(word, 0) + k
     result.state = loop.state

@@ -11,6 +11,11 @@ Five files, each always written (a panel without data says so):
   (and, with truth, between measured and true ones: the camera noise);
 * ``trajectories.png`` — horizontal tracks: truth, and the estimates mapped onto it by the
   best similarity (:func:`~groundstation.gcs.similarity.similarity_2d`) when truth is recorded.
+
+``gcs estimate --replay IN.mcap --plot DIR`` writes paper 001's EKF on the same recording
+(:func:`plot_ekf_replay`): ``ekf_distances.png`` (every pair's estimated distance, and the true
+one dashed), ``ekf_scale_error.png`` (each pair's relative distance error with the 2% line;
+needs truth) and ``ekf_sigma.png`` (each vehicle's 1-sigma position radius).
 """
 
 from __future__ import annotations
@@ -26,9 +31,12 @@ from groundstation.gcs.analysis import (
     inverse_distance_error,
     rows_at,
 )
+from groundstation.gcs.ekf_replay import ReplayResult
 from groundstation.gcs.similarity import similarity_2d
 
 SCALE_THRESHOLD_INV_M = 0.01
+EKF_SCALE_THRESHOLD = 0.02
+"""Relative distance error the EKF's scale is judged by (``time_to_scale_s`` of ``ekf-se3``)."""
 
 
 def _figure(title: str) -> tuple[Any, Any]:
@@ -214,3 +222,42 @@ def plot_all(s: Series, out: Path) -> list[Path]:
         plot_bearing_errors(s, out),
         plot_trajectories(s, out),
     ]
+
+
+def plot_ekf_replay(r: ReplayResult, out: Path) -> list[Path]:
+    """Paper 001's EKF over a recording (module doc); returns the three paths."""
+    out = Path(out)
+    h = r.history
+    t = np.array([x.t_s for x in h])
+    t0 = t[0] if len(t) else 0.0
+    pairs = r.pairs()
+    d_est = np.array(
+        [[np.linalg.norm(x.p_ref_m[a] - x.p_ref_m[b]) for a, b in pairs] for x in h]
+    ).reshape(len(h), len(pairs))
+    truth = [r.true_distances(x.t_s) for x in h]
+    with_truth = bool(h) and all(d is not None for d in truth)
+    d_true = np.array(truth, dtype=float).reshape(len(h), len(pairs)) if with_truth else None
+
+    fig, ax = _figure("EKF (paper 001): pairwise distances, estimated (solid) and true (dashed)")
+    for k, (a, b) in enumerate(pairs):
+        (line,) = ax.plot(t - t0, d_est[:, k], label=f"{r.ids[a]}-{r.ids[b]}")
+        if d_true is not None:
+            ax.plot(t - t0, d_true[:, k], ls="--", color=line.get_color())
+    ax.set_ylabel("distance (m)")
+    paths = [_save(fig, ax, out / "ekf_distances.png", not h, "EKF updates")]
+
+    fig, ax = _figure("EKF (paper 001): relative distance error per pair")
+    if d_true is not None:
+        for k, (a, b) in enumerate(pairs):
+            err = np.abs(d_est[:, k] / d_true[:, k] - 1.0)
+            ax.semilogy(t - t0, np.maximum(err, 1e-6), label=f"{r.ids[a]}-{r.ids[b]}")
+        ax.axhline(EKF_SCALE_THRESHOLD, color="k", ls="--", lw=0.8, label="2%: metric scale")
+    ax.set_ylabel("|d_est / d_true - 1|")
+    paths.append(_save(fig, ax, out / "ekf_scale_error.png", d_true is None, "truth"))
+
+    fig, ax = _figure("EKF (paper 001): 1-sigma position radius (reference fixed at 0)")
+    for k, i in enumerate(r.ids[1:], start=1):
+        ax.semilogy(t - t0, np.maximum([x.sigma_p_m[k] for x in h], 1e-6), label=f"vehicle {i}")
+    ax.set_ylabel("sqrt(trace P_p) (m)")
+    paths.append(_save(fig, ax, out / "ekf_sigma.png", not h, "EKF updates"))
+    return paths

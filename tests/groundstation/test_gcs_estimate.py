@@ -133,3 +133,43 @@ def test_silent_vehicle_and_unknown_targets_are_counted_not_fatal(tmp_path):
     assert out["skipped"]["stale_odometry"] == 9
     assert out["skipped"]["bearing_to_unknown_vehicle"] == 3 * 25
     assert all(np.isfinite(v).all() for v in out["p_ref_m"].values())
+
+
+def test_replay_plots_the_estimate_converging_to_the_truth(tmp_path):
+    path = tmp_path / "flight.mcap"
+    _record(path, garbage=0)
+    out = tmp_path / "plots"
+    res = CliRunner().invoke(
+        app, ["gcs", "estimate", "--replay", str(path), "--json", "--plot", str(out)]
+    )
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    names = [p.rsplit("/", 1)[-1] for p in summary["plots"]]
+    assert names == ["ekf_distances.png", "ekf_scale_error.png", "ekf_sigma.png"]
+    for p in summary["plots"]:
+        assert open(p, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_replay_history_starts_on_the_ring_prior_and_ends_at_the_true_distances(tmp_path):
+    from groundstation.gcs.ekf_replay import HISTORY_PERIOD_S, replay_estimate
+
+    path = tmp_path / "flight.mcap"
+    _record(path, garbage=0)
+    r = replay_estimate(path)
+    t = np.array([x.t_s for x in r.history])
+    assert len(t) > 50 and np.all(np.diff(t) >= HISTORY_PERIOD_S - 1e-9)
+
+    def err(x):
+        d = r.true_distances(x.t_s)
+        est = [np.linalg.norm(x.p_ref_m[a] - x.p_ref_m[b]) for a, b in r.pairs()]
+        return np.max(np.abs(np.array(est) / d - 1.0))
+
+    assert err(r.history[0]) > 0.1  # the ring prior knows nothing of the scale
+    assert err(r.history[-1]) < 0.02
+    assert r.history[-1].sigma_p_m[0] == 0.0 and np.all(r.history[-1].sigma_p_m[1:] > 0)
+    assert np.all(r.history[-1].sigma_p_m[1:] < r.history[0].sigma_p_m[1:])
+
+
+def test_plot_needs_a_replay():
+    res = CliRunner().invoke(app, ["gcs", "estimate", "--plot", "/tmp/x", "--zenoh", "none"])
+    assert res.exit_code == 2 and "--plot needs --replay" in res.output
