@@ -2,7 +2,7 @@
 link was lost once stopped publishing its status (its loop skipped everything while not
 connected), so the operator saw a frozen row or ``agent_lost``, never the cause. The simulator
 and three daemons as processes, real UDP MAVLink and Zenoh on loopback; the simulator (every
-vehicle's autopilot, and the simulation clock) is stopped with SIGSTOP for 4 s. Every daemon
+vehicle's autopilot, and the simulation clock) is stopped with SIGSTOP for 6 s. Every daemon
 must keep publishing its status, name the cause (``autopilot_stale``, then ``autopilot_lost``),
 and fly on without alarms once the simulator resumes."""
 
@@ -15,7 +15,8 @@ import time
 import pytest
 
 pytestmark = pytest.mark.e2e
-STALL_S = 4.0
+STALL_S = 6.0
+"""Wall seconds of stall: `autopilot_lost` came after 2.2-3.1 s in runs of this test (loaded machine)."""
 TEAM = range(3)
 
 
