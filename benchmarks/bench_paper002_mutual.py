@@ -225,7 +225,8 @@ def run_setting(
     er3, et3 = errors(j.rot, j.t)
     print(
         f"[{name}] stage 3 (joint, eq. 13 + 16): {j.rounds} rounds, cost {j.cost[0]:.4g} -> "
-        f"{j.cost[-1]:.4g}, lambda min {j.lam_min_seen:.3f}, rotation error {_stats(er3)} deg, "
+        f"{j.cost[-1]:.4g} (monotone: {bool(np.all(np.diff(j.cost) <= 1e-12 * j.cost[0]))}), "
+        f"lambda min {j.lam_min_seen:.3f}, rotation error {_stats(er3)} deg, "
         f"position error {_stats(et3)} m ({time.perf_counter() - t0:.1f} s)",
         flush=True,
     )
