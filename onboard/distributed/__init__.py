@@ -10,6 +10,8 @@ Modules, one job each, pure functions on arrays:
   through the exponential map), the projection of eq. 17, the step-size rule and the leader option;
 * :mod:`.rotation`: rotation estimation (eq. 13-15);
 * :mod:`.localization`: bearing-only and bearing + distance localization (eq. 16-17, 22);
+* :mod:`.joint`: rotations, translations and scales together (eq. 13 + 16, mutual localization's
+  third stage) and the three-stage run;
 * :mod:`.formation`: bearing (+ distance) formation control (eq. 18-21, 23);
 * :mod:`.metrics`: errors modulo the unobservable gauge (similarity / global rotation alignment).
 """
