@@ -345,7 +345,7 @@ def demo(
     localization: Annotated[
         str,
         typer.Option(
-            help="The fleet file's [core] localization: paper000 (paper 000's filter) or "
+            help="The fleet file's core.localization: paper000 (paper 000's filter) or "
             "paper002 (paper 002's distributed gradient localization, docs/distributed.md).",
         ),
     ] = "paper000",
