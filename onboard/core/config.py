@@ -231,6 +231,14 @@ class GradientLocalizationGains(msgspec.Struct, frozen=True, kw_only=True,
     gradloc_range_weight: float = 1.0
     """``w`` of ``f_D(x) = w x^2`` (eq. 22) on the edges with an SfM distance: the relative
     weight of a range against a bearing residual (both in metres)."""
+    gradloc_measured_range_weight: float = 1.0
+    """``w`` of ``f_D(x) = w x^2`` (eq. 22) on the out-edges with a fresh *measured* range
+    (``own.ranges``: the camera's disc ranges), which replaces the SfM distance there. It
+    expresses the noise of a range against a bearing's: with bearing noise ``sigma_b`` (rad) at
+    distance ``d`` and range noise ``sigma_r`` (m), ``w ~ (sigma_b d / sigma_r)^2``
+    (:mod:`onboard.distributed.reshaping`). 1: a range error counts as much as a bearing
+    residual of the same length, as the SfM distances do; lower it for noisy ranges (a disc's
+    range from its apparent size errs ~ ``d^2 / (f r)`` x the radius error in pixels)."""
 
     def __post_init__(self) -> None:
         if self.localization not in LOCALIZATIONS:
@@ -241,6 +249,9 @@ class GradientLocalizationGains(msgspec.Struct, frozen=True, kw_only=True,
         if not (self.gradloc_range_weight > 0.0 and self.gradloc_range_weight < 1e6):
             raise ValueError(f"gradloc_range_weight must be in (0, 1e6), got "
                              f"{self.gradloc_range_weight}")  # fmt: skip
+        if not (0.0 < self.gradloc_measured_range_weight < 1e6):
+            raise ValueError(f"gradloc_measured_range_weight must be in (0, 1e6), got "
+                             f"{self.gradloc_measured_range_weight}")  # fmt: skip
 
 
 class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
