@@ -268,4 +268,4 @@ class GradientLocalization:
         self._w_in.clear()
 
     def status(self) -> dict[str, Any]:
-        return {"p_hat_ned": self.t_ned}
+        return {"p_hat_ned": self.t_ned, "range_terms": self.range_terms}

@@ -290,6 +290,7 @@ def test_measured_ranges_alone_give_the_true_scale() -> None:
         for j, lam in layer.lam.items():
             assert lam == pytest.approx(_true_range(i, j), abs=1e-3)
     assert layers[0].range_terms == layers[2].range_terms == STEPS - 1
+    assert layers[0].status()["range_terms"] == STEPS - 1  # AgentStatus.range_terms
     assert layers[1].range_terms == layers[3].range_terms == 0
     assert layers[0].lambda_min is None and layers[1].lambda_min == 1.0
     assert all(not peers.drops for peers in tables)
