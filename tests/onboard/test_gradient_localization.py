@@ -31,10 +31,11 @@ DT_S = 0.01
 STEPS = 1500
 
 
-def _fake_scale(i: int, yaw: float, ranges: dict[int, float]):
-    """What the layer reads from paper 000's scale layer: the filter's yaw (the known rotation)
-    and the SfM inverse distances of the reciprocal edges."""
+def _fake_scale(i: int, yaw: float, ranges: dict[int, float], converged: bool = False):
+    """What the layer reads from paper 000's scale layer: the filter's yaw (the known rotation),
+    the SfM inverse distances of the reciprocal edges and whether they have converged."""
     return SimpleNamespace(
+        scale_converged=lambda: converged,
         localization=SimpleNamespace(yaw_hat_rad=yaw),
         reciprocal=sorted(ranges),
         chi_hat=lambda j: 1.0 / ranges[j] if j in ranges else None,
@@ -53,7 +54,8 @@ def _fake_bearings(i: int, edges, p, yaw):
     )
 
 
-def _team(p_prior: np.ndarray, ranges: dict[tuple[int, int], float], edges=EDGES):
+def _team(p_prior: np.ndarray, ranges: dict[tuple[int, int], float], edges=EDGES,
+          sfm_converged: bool = False, measured_weight: float = 1.0):  # fmt: skip
     n = len(P_TRUE)
     layers, tables = [], []
     for i in range(n):
@@ -64,9 +66,10 @@ def _team(p_prior: np.ndarray, ranges: dict[tuple[int, int], float], edges=EDGES
         mine = {b: d for (a, b), d in ranges.items() if a == i}
         mine.update({a: d for (a, b), d in ranges.items() if b == i})
         layer = GradientLocalization(
-            graph, GradientLocalizationGains(localization="paper002"), peers,
-            _fake_bearings(i, edges, P_TRUE, YAW_TRUE),  # type: ignore[arg-type]
-            _fake_scale(i, float(YAW_TRUE[i]), mine),  # type: ignore[arg-type]
+            graph, GradientLocalizationGains(localization="paper002",
+                                             gradloc_measured_range_weight=measured_weight),
+            peers, _fake_bearings(i, edges, P_TRUE, YAW_TRUE),  # type: ignore[arg-type]
+            _fake_scale(i, float(YAW_TRUE[i]), mine, sfm_converged),  # type: ignore[arg-type]
             peers.drops,
         )  # fmt: skip
         for kind, route in layer.routes.items():
@@ -296,9 +299,9 @@ def test_measured_ranges_alone_give_the_true_scale() -> None:
     assert all(not peers.drops for peers in tables)
 
 
-def test_a_measured_range_replaces_the_sfm_distance_on_its_edge() -> None:
-    """Edge (0, 1) has an SfM distance 20% long and a measured range that is right: the scale
-    follows the measurement."""
+def test_a_measured_range_replaces_an_unconverged_sfm_distance() -> None:
+    """Edge (0, 1) has an SfM distance 20% long, not converged yet, and a measured range that
+    is right: the scale follows the measurement."""
     c = P_TRUE.mean(axis=0)
     d01 = _true_range(0, 1)
     layers, tables = _team(c + 0.6 * (P_TRUE - c), {(0, 1): 1.2 * d01})
@@ -354,3 +357,19 @@ def test_bad_ranges_are_counted_in_the_core_and_never_reach_the_state() -> None:
     core.step(0.08, msgspec.structs.replace(own, t_s=0.08))
     assert layer.range_terms == 0
     assert all(math.isfinite(x) for x in (*layer.p_hat_ned, *layer.lam.values()))
+
+
+@pytest.mark.parametrize(("w_measured", "expected"), [(1.0, 1.1), (3.0, 1.05)])
+def test_with_a_converged_sfm_distance_both_terms_count_by_their_weights(w_measured, expected):
+    """Both on edge (0, 1) in both directions: lambda settles at the weighted mean of the SfM
+    distance (1.2 d, weight 1) and the measured range (d, weight ``w_measured``)."""
+    c = P_TRUE.mean(axis=0)
+    d01 = _true_range(0, 1)
+    layers, tables = _team(c + 0.6 * (P_TRUE - c), {(0, 1): 1.2 * d01}, sfm_converged=True,
+                           measured_weight=w_measured)  # fmt: skip
+    layers[0].bearings.range_out[1] = (0.0, d01)
+    layers[1].bearings.range_out[0] = (0.0, d01)
+    _fly(layers, tables, STEPS)
+    t_hat = np.array([layer.p_hat_ned for layer in layers])
+    assert _size_error(t_hat, P_TRUE) == pytest.approx(expected - 1.0, abs=1e-3)
+    assert layers[0].lam[1] == pytest.approx(expected * d01, rel=1e-3)
