@@ -240,8 +240,8 @@ class GradientLocalizationGains(msgspec.Struct, frozen=True, kw_only=True,
     ``sigma_r`` (m), ``w ~ (sigma_b d / sigma_r)^2`` (:mod:`onboard.distributed.reshaping`);
     against the SfM distance's term the ratio of the two weights is that of the inverse
     variances. 1: as the SfM distances. Measured in the camera e2e flight (3 vehicles about
-    7 m apart, rendered discs): ``lambda_ij`` median 0.2-0.6% off the true distance from the first second
-    the vehicles see each other, 0.2-0.4% once combined with the converged SfM distance
+    7 m apart, rendered discs): ``lambda_ij`` median 0.2-0.6% off the true distance from the
+    first second the vehicles see each other, 0.2-0.4% once combined with the converged SfM distance
     (SfM alone: 42% off, the prior's, until ~2 s after take-off, then 0.1-0.2%); 0.3 gave
     0.5-1.1% before and 0.13-0.26% after, 0.1 4% in the first second. Lower it for noisier
     ranges (a disc's range from its apparent size errs ~ ``d^2 / (f r)`` x the radius error in

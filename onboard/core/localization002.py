@@ -32,11 +32,12 @@ step, so its rate is the core's):
    the camera measures the distance now, while the SfM estimate of the same distance starts at
    the prior's (40% off in the demo) and only converges with motion. From then on both terms
    stay, each with its weight, so the edge's scale settles at their weighted mean: in flight a
-   converged SfM distance was the better one (camera e2e, 3 vehicles about 7 m apart: SfM median
-   0.15% off the true distance, the rendered discs' ranges 0.4%). The ``lambda_ij`` step is
-   ``1 / (2 + 4 sqrt(3) + c_D)`` with the ``c_D`` of the terms on the edge. With ranges in the fleet's graph the ``lambda >= 1``
-   constraint (eq. 17) is dropped, as the paper says; a fleet without reciprocal edges keeps
-   it until the agent uses its first measured range, and from then on never again.
+   converged SfM distance was the better one (camera e2e, 3 vehicles about 7 m apart: SfM
+   median 0.15% off the true distance, the rendered discs' ranges 0.4%). The ``lambda_ij`` step is
+   ``1 / (2 + 4 sqrt(3) + c_D)`` with the ``c_D`` of the terms on the edge. With ranges in
+   the fleet's graph the ``lambda >= 1`` constraint (eq. 17) is dropped, as the paper says; a
+   fleet without reciprocal edges keeps it until the agent uses its first measured range, and
+   from then on never again.
 4. **Publish** :class:`messages.peer.GradientLocalizationShare`: ``T_i``, ``R_i v_i`` and
    ``lambda_ij u_ij`` per out-edge with a fresh bearing.
 

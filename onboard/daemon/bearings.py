@@ -2,7 +2,8 @@
 
 One interface, :class:`BearingSource`: ``poll()`` returns the bearings of a camera frame not seen
 before, or ``None``; a source that also measures distances is a :class:`RangeSource`
-(``frame_ranges()``: the ranges of the frame ``poll()`` returned last, same stamp). :class:`SimCameraSource` takes the simulator's virtual camera
+(``frame_ranges()``: the ranges of the frame ``poll()`` returned last, same stamp).
+:class:`SimCameraSource` takes the simulator's virtual camera
 (``bf/<fleet>/<id>/camera/bearings``); the camera pipeline (``onboard.vision``) plugs in behind
 the same interface.
 """
