@@ -6,6 +6,8 @@ Frames: body is FRD, velocities in m/s, angles in rad, times in s (``docs/design
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import msgspec
 
 from messages.codec import Payload
@@ -90,6 +92,9 @@ class AgentStatus(Payload, tag="agent.status"):
     10% of the estimate."""
     scale_converged: bool = False
     """Every SfM observer this agent knows has ``E`` below the convergence threshold."""
+    range_terms: Annotated[int, msgspec.Meta(ge=0)] = 0
+    """Measured-range terms (paper 002 eq. 22: the camera's disc ranges) paper 002's
+    localization has used so far, one per out-edge and step (0 without that layer)."""
 
 
 class VehicleStatus(Payload, tag="vehicle.status"):

@@ -53,6 +53,11 @@ NAME_MAX = 64
 """Longest consensus quantity name."""
 ARRAY_ABS_MAX = DIMENSIONLESS_MAX
 """Bound of every entry of a float64 array field (rigidity shares: positions, eigenvectors)."""
+RANGE_MIN_M = 1.0 / INV_DISTANCE_MAX_INV_M
+"""Shortest measured distance to another vehicle, m (1 cm: the SfM observers' bound, above)."""
+RANGE_MAX_M = POSITION_MAX_M
+"""Longest measured distance to another vehicle, m (100 km: a camera sees a vehicle's marker
+within tens of metres)."""
 STAMP_FUTURE_MAX_S = 1.0
 """A receiver drops a sample stamped more than this ahead of its own clock (``future_stamp``):
 the team's clocks agree to milliseconds (docs/flying.md), and a peer whose clock runs ahead by
@@ -86,3 +91,9 @@ def stamp_ahead(stamp_s: float, now_s: float | None) -> bool:
     """Whether a sender's ``stamp_s`` is further ahead of the receiver's clock ``now_s`` than
     :data:`STAMP_FUTURE_MAX_S` (``False`` while the receiver's clock is unknown)."""
     return now_s is not None and stamp_s > now_s + STAMP_FUTURE_MAX_S
+
+
+def plausible_range(range_m: float) -> bool:
+    """Whether a measured distance to another vehicle is finite and within
+    [:data:`RANGE_MIN_M`, :data:`RANGE_MAX_M`] (``False`` for NaN and infinity)."""
+    return RANGE_MIN_M <= range_m <= RANGE_MAX_M

@@ -208,6 +208,9 @@ class DropReason(StrEnum):
     """Core: its own measurements are not finite."""
     BAD_BEARING = "bad_bearing"
     """Core: a bearing that is not a finite unit vector."""
+    BAD_RANGE = "bad_range"
+    """Core: a measured range that is not finite or outside ``messages.limits.RANGE_MIN_M ..
+    RANGE_MAX_M``."""
     UNKNOWN_EDGE = "unknown_edge"
     """Core: an SfM share for an edge it does not observe."""
     UNKNOWN_NAME = "unknown_name"

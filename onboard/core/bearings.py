@@ -6,6 +6,12 @@ time), takes the new camera frame (stale, future-stamped and non-unit bearings a
 dropped), feeds the relative-yaw trackers of the edges it was given, and publishes the frame as
 :class:`messages.peer.BearingShare`. What neighbours measured of this vehicle is kept newest by
 stamp (``beta_ji``, used by localization eq. 6 and the formation law).
+
+The ranges of the own measurements (``own.ranges``: the camera's disc ranges, paper 002 eq. 22)
+to out-edge targets are kept the same way, newest per target (:attr:`Bearings.range_out`); a
+range that is not finite or outside :func:`messages.limits.plausible_range` is counted
+(``bad_range``) and dropped, one stamped too far ahead ``future_stamp``. Users check freshness
+by stamp, as for the bearings. Paper 003's layer reads ``own.ranges`` itself.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from messages.codec import Payload
-from messages.limits import stamp_ahead
+from messages.limits import plausible_range, stamp_ahead
 from messages.peer import BearingShare, TargetBearing
 from messages.vocabulary import DropReason
 from onboard.core.config import Graph
@@ -54,6 +60,9 @@ class Bearings:
         """Target -> (stamp, own bearing of it), newest frame."""
         self.beta_in: dict[int, tuple[float, Vec3]] = {}
         """Neighbour ``j`` -> (stamp, ``beta_ji``), newest by stamp."""
+        self.range_out: dict[int, tuple[float, float]] = {}
+        """Target -> (stamp, measured range m), newest by stamp (module docstring)."""
+        self._last_range_s = -math.inf
         self.new_frames: list[tuple[int, float, Vec3]] = []
         """``(target, stamp, beta)`` of this step's new frame."""
         self._last_frame_s = -math.inf
@@ -74,7 +83,33 @@ class Bearings:
         """Record the odometry, take the new frame, share it."""
         self.own_hist.add(own.odometry_stamp_s, (*own.v_body, own.yaw_rate_rad_s, own.yaw_rad))
         self._take_frame(own, outbox)
+        if own.raw.ranges:
+            self._take_ranges(own)
         return None
+
+    def _take_ranges(self, own: Own) -> None:
+        newest = self._last_range_s
+        for r in own.raw.ranges:
+            try:
+                stamp, range_m = float(r.stamp_s), float(r.range_m)
+            except (TypeError, ValueError):
+                stamp, range_m = math.nan, math.nan
+            if not math.isfinite(stamp):
+                self._drops.count(DropReason.BAD_RANGE)
+                continue
+            if stamp <= self._last_range_s or r.target not in self.out_targets:
+                continue  # seen before: a bad one is counted once
+            if stamp_ahead(stamp, own.raw.t_s):
+                self._drops.count(DropReason.FUTURE_STAMP)
+                continue
+            newest = max(newest, stamp)
+            if not plausible_range(range_m):
+                self._drops.count(DropReason.BAD_RANGE)
+                continue
+            prev = self.range_out.get(r.target)
+            if prev is None or stamp > prev[0]:
+                self.range_out[r.target] = (stamp, range_m)
+        self._last_range_s = newest
 
     def _take_frame(self, own: Own, outbox: list[Payload]) -> None:
         yaw_own = own.yaw_rad
@@ -134,6 +169,8 @@ class Bearings:
         self.yaw_edges = {j: RelativeYawEdge() for j in self._yaw_peers}
         self.beta_in.clear()
         self.beta_out.clear()
+        self.range_out.clear()
+        self._last_range_s = -math.inf
         self.new_frames = []
         self._last_frame_s = -math.inf
 

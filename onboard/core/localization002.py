@@ -23,8 +23,21 @@ step, so its rate is the core's):
    The range term ``f_D(lambda_ij - 1 / chihat_ij)`` is on every reciprocal edge whose SfM
    inverse distance (paper 000 eq. 8, the scale layer's) is at least ``chi_min_inv_m``, as paper
    000's filter uses it: the observer starts at the prior's distance and converges with the
-   active motion. With ranges in the fleet's graph the ``lambda >= 1`` constraint (eq. 17) is
-   dropped, as the paper says; a fleet without reciprocal edges keeps it.
+   active motion. A fresh *measured* range ``d_ij`` of the out-edge (``own.ranges``, kept by
+   the camera layer :attr:`onboard.core.bearings.Bearings.range_out`, used while
+   ``peer_timeout_s`` old like the bearings: the camera pipeline's disc ranges) adds
+   ``f_D(lambda_ij - d_ij)`` with its own weight ``gradloc_measured_range_weight`` (the noise
+   of a range against a bearing's). Until the scale layer's SfM scale has converged
+   (:meth:`onboard.core.scale.Scale.scale_converged`) it *replaces* the SfM term on that edge:
+   the camera measures the distance now, while the SfM estimate of the same distance starts at
+   the prior's (40% off in the demo) and only converges with motion. From then on both terms
+   stay, each with its weight, so the edge's scale settles at their weighted mean: in flight a
+   converged SfM distance was the better one (camera e2e, 3 vehicles about 7 m apart: SfM
+   median 0.15% off the true distance, the rendered discs' ranges 0.4%). The ``lambda_ij`` step is
+   ``1 / (2 + 4 sqrt(3) + c_D)`` with the ``c_D`` of the terms on the edge. With ranges in
+   the fleet's graph the ``lambda >= 1`` constraint (eq. 17) is dropped, as the paper says; a
+   fleet without reciprocal edges keeps it until the agent uses its first measured range, and
+   from then on never again.
 4. **Publish** :class:`messages.peer.GradientLocalizationShare`: ``T_i``, ``R_i v_i`` and
    ``lambda_ij u_ij`` per out-edge with a fresh bearing.
 
@@ -60,6 +73,16 @@ from onboard.distributed.localization import (
 from onboard.distributed.reshaping import ReshapeD
 
 
+def range_edge_gradients(lam: np.ndarray, range_m: np.ndarray, f_d: ReshapeD) -> np.ndarray:
+    """``d/d lambda f_D(lambda - d)`` per edge (paper 002 eq. 22), 0 where ``range_m`` is NaN."""
+    lam = np.asarray(lam, dtype=float)
+    r = np.asarray(range_m, dtype=float)
+    has = np.isfinite(r)
+    out = np.zeros_like(lam)
+    out[has] = f_d.deriv(lam[has] - r[has])
+    return out
+
+
 def _within(v: tuple[float, ...], limit: float) -> bool:
     return finite(v) and all(abs(x) <= limit for x in v)
 
@@ -79,6 +102,7 @@ class GradientLocalization:
         self.in_sources = list(bearings.in_sources)
         self.routes = {GradientLocalizationShare: Route(peers.neighbours, self._take)}
         self.f_d = ReshapeD(w=gains.gradloc_range_weight)
+        self.f_d_measured = ReshapeD(w=gains.gradloc_measured_range_weight)
         edges = set(graph.edges)
         ranged = any((j, i) in edges for i, j in edges)
         self.lambda_min: float | None = None if ranged else LAMBDA_MIN
@@ -90,6 +114,13 @@ class GradientLocalization:
         h_t, h_l = localization_steps(arr, 1 + len(local), self.f_d)
         self.h_t = float(h_t[0])
         self.h_lambda = float(h_l[0]) if len(h_l) else 0.0
+        h_lm = localization_steps(arr, 1 + len(local), self.f_d_measured)[1]
+        self.h_lambda_measured = float(h_lm[0]) if len(h_lm) else 0.0
+        """The ``lambda_ij`` step on an out-edge with a measured range only (its ``c_D``)."""
+        both = ReshapeD(w=gains.gradloc_range_weight + gains.gradloc_measured_range_weight)
+        h_lb = localization_steps(arr, 1 + len(local), both)[1]
+        self.h_lambda_both = float(h_lb[0]) if len(h_lb) else 0.0
+        """... and with a measured range and an SfM distance (the sum of their ``c_D``)."""
         p0 = graph.p0(me)
         self.t_ned: Vec3 = p0
         self.v_ned: Vec3 = (0.0, 0.0, 0.0)
@@ -103,6 +134,8 @@ class GradientLocalization:
         self._w_in: dict[int, Vec3] = {}
         """In-edge source ``j`` -> ``lambda_ji u_ji`` of its latest share."""
         self.rounds = 0
+        self.range_terms = 0
+        """Measured-range terms used so far (one per out-edge and step)."""
 
     # ----------------------------------------------------------------- pose
     @property
@@ -152,9 +185,11 @@ class GradientLocalization:
             p, v = m.t_ned, m.v_ned
             nb[j] = ((p[0] + a * v[0], p[1] + a * v[1], p[2] + a * v[2]), v)
         # out-edges: own T_i, lambda_ij, u_ij; j's T_j
-        out_j, out_t, out_u, out_r = [], [], [], []
+        out_j, out_t, out_u, out_r, out_m = [], [], [], [], []
         beta_out, fresh = self.bearings.beta_out, self.peers.is_fresh
+        range_out = self.bearings.range_out
         sc = self.scale
+        sfm_trusted: bool | None = None  # the scale layer's verdict, asked once if needed
         for j in self.out_targets:
             b = beta_out.get(j)
             if j not in nb or b is None or not fresh(b[0], t_s):
@@ -163,12 +198,20 @@ class GradientLocalization:
             v_j = nb[j][1]
             lam[j] += dt * (u[0] * (v_j[0] - v_i[0]) + u[1] * (v_j[1] - v_i[1])
                             + u[2] * (v_j[2] - v_i[2]))  # fmt: skip
+            d = range_out.get(j)
+            meas = d[1] if d is not None and fresh(d[0], t_s) else math.nan
             chi = sc.chi_hat(j) if j in sc.reciprocal else None
             rng = 1.0 / chi if chi is not None and chi >= sc.gains.chi_min_inv_m else math.nan
+            if math.isfinite(meas) and math.isfinite(rng):
+                if sfm_trusted is None:
+                    sfm_trusted = sc.scale_converged()
+                if not sfm_trusted:  # the measured range replaces an unconverged SfM distance
+                    rng = math.nan
             out_j.append(j)
             out_t.append(nb[j][0])
             out_u.append(u)
             out_r.append(rng)
+            out_m.append(meas)
         g_t = np.zeros(3)
         g_lam = np.zeros(0)
         if out_j:
@@ -182,7 +225,8 @@ class GradientLocalization:
                 f_d=self.f_d,
             )
             g_t += g.g_src.sum(axis=0)
-            g_lam = g.g_edge
+            lam_out = np.array([lam[j] for j in out_j])
+            g_lam = g.g_edge + range_edge_gradients(lam_out, np.array(out_m), self.f_d_measured)
         # in-edges: j's T_j and lambda_ji u_ji (unit scale on the shared product)
         in_t, in_w = [], []
         for j in self.in_sources:
@@ -200,15 +244,24 @@ class GradientLocalization:
             g_t += g.g_dst.sum(axis=0)
         new_t = (t_i[0] - self.h_t * g_t[0], t_i[1] - self.h_t * g_t[1],
                  t_i[2] - self.h_t * g_t[2])  # fmt: skip
-        for j, gl in zip(out_j, g_lam.tolist(), strict=True):
-            lam[j] -= self.h_lambda * gl
-            if self.lambda_min is not None:
-                lam[j] = max(lam[j], self.lambda_min)
+        n_measured = sum(1 for m in out_m if math.isfinite(m))
+        lam_min = None if n_measured else self.lambda_min  # eq. 17 off with a range (docstring)
+        for j, gl, m, r in zip(out_j, g_lam.tolist(), out_m, out_r, strict=True):
+            if math.isfinite(m):
+                h = self.h_lambda_both if math.isfinite(r) else self.h_lambda_measured
+            else:
+                h = self.h_lambda
+            lam[j] -= h * gl
+            if lam_min is not None:
+                lam[j] = max(lam[j], lam_min)
         new_t = (float(new_t[0]), float(new_t[1]), float(new_t[2]))
         if _within(new_t, POSITION_MAX_M) and _within(tuple(lam.values()), POSITION_MAX_M):
             self.t_ned, self.lam = new_t, lam
             if out_j or in_t:
                 self.rounds += 1
+            if n_measured:
+                self.range_terms += n_measured
+                self.lambda_min = None
         else:  # never let a non-finite (or absurd) estimate out: keep the last one
             self._drops.count(DropReason.NONFINITE)
         self.v_ned = v_i
@@ -231,4 +284,4 @@ class GradientLocalization:
         self._w_in.clear()
 
     def status(self) -> dict[str, Any]:
-        return {"p_hat_ned": self.t_ned}
+        return {"p_hat_ned": self.t_ned, "range_terms": self.range_terms}

@@ -1,7 +1,9 @@
 """Bearing sources: where a daemon's body-frame bearings come from.
 
 One interface, :class:`BearingSource`: ``poll()`` returns the bearings of a camera frame not seen
-before, or ``None``. :class:`SimCameraSource` takes the simulator's virtual camera
+before, or ``None``; a source that also measures distances is a :class:`RangeSource`
+(``frame_ranges()``: the ranges of the frame ``poll()`` returned last, same stamp).
+:class:`SimCameraSource` takes the simulator's virtual camera
 (``bf/<fleet>/<id>/camera/bearings``); the camera pipeline (``onboard.vision``) plugs in behind
 the same interface.
 """
@@ -11,9 +13,9 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
-from messages.agent import BearingMeasurement
+from messages.agent import BearingMeasurement, RangeMeasurement
 from messages.codec import MessageError, decode
 from messages.limits import stamp_ahead
 from messages.sim import CameraBearings, camera_key
@@ -28,6 +30,15 @@ class BearingSource(Protocol):
 
     def age_s(self, now_s: float) -> float:
         """Time since the newest frame was captured (inf before the first)."""
+        ...
+
+
+@runtime_checkable
+class RangeSource(Protocol):
+    """A :class:`BearingSource` whose frames also carry ranges (the camera pipeline's discs)."""
+
+    def frame_ranges(self) -> tuple[RangeMeasurement, ...]:
+        """The ranges of the frame the last ``poll()`` returned (``()`` if none)."""
         ...
 
 

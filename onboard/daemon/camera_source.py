@@ -29,7 +29,13 @@ For each frame the worker
    has reported, or when a newer stamp arrives first.
 
 :meth:`poll` returns the newest complete set not returned before, as
-:class:`~messages.agent.BearingMeasurement` s stamped with the frame time.
+:class:`~messages.agent.BearingMeasurement` s stamped with the frame time, and
+:meth:`frame_ranges` the ranges of that set's detections (discs from their apparent size,
+paper 002 eq. 33-34; tags from their pose) as :class:`~messages.agent.RangeMeasurement` s with
+the same stamp (paper 002 eq. 22's measured distances). A range that is not finite
+(``camera_nonfinite``) or outside :data:`messages.limits.RANGE_MIN_M` ..
+:data:`~messages.limits.RANGE_MAX_M` (``camera_out_of_range``) is counted and dropped, its
+bearing kept. With ``ranges=False`` (the fleet file's ``[camera] ranges``) no range is given.
 """
 
 from __future__ import annotations
@@ -45,10 +51,10 @@ from typing import Any
 
 import numpy as np
 
-from messages.agent import BearingMeasurement
+from messages.agent import BearingMeasurement, RangeMeasurement
 from messages.codec import MessageError, decode
 from messages.image import Image, image_from_payload, image_key
-from messages.limits import stamp_ahead
+from messages.limits import plausible_range, stamp_ahead
 from messages.vocabulary import DropReason, DropScope
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.vision.markers import Detection
@@ -141,6 +147,8 @@ class SourceStats:
     cut: int = 0
     """Detections left out because the marker touches the image border."""
     detections: int = 0
+    ranges: int = 0
+    """Ranges passed on (at most one per bearing)."""
     process_s: list[float] = field(default_factory=list)
 
 
@@ -167,6 +175,7 @@ class CameraImageSource:
         max_attitude_gap_s: float = 0.25,
         start: bool = True,
         clock: Callable[[], float | None] | None = None,
+        ranges: bool = True,
     ) -> None:
         if not pipelines:
             raise ValueError("a camera source needs at least one camera pipeline")
@@ -179,6 +188,8 @@ class CameraImageSource:
         self.clock = clock
         """The daemon's clock: an image stamped further ahead of it than
         :data:`messages.limits.STAMP_FUTURE_MAX_S` is dropped (``camera_future_stamp``)."""
+        self.ranges = ranges
+        """Pass the detections' ranges on (:meth:`frame_ranges`)."""
         self.history = AttitudeHistory(max_gap_s=max_attitude_gap_s)
         self.stats = SourceStats()
         self._cond = threading.Condition()
@@ -188,6 +199,8 @@ class CameraImageSource:
         self._set_cameras: set[int] = set()
         self._done_stamp = -math.inf
         self._out: tuple[BearingMeasurement, ...] | None = None
+        self._out_ranges: tuple[RangeMeasurement, ...] = ()
+        self._polled_ranges: tuple[RangeMeasurement, ...] = ()
         self._new = False
         self._out_stamp = -math.inf
         self._stop = False
@@ -352,16 +365,33 @@ class CameraImageSource:
                 DropScope.CAMERA,
             )
             return
-        ids, beta, _ = self.pipelines[0].bearings_level(dets, rp[0], rp[1])
+        ids, beta, rng = self.pipelines[0].bearings_level(dets, rp[0], rp[1])
         out = tuple(
             BearingMeasurement(
                 target=int(j), beta_body=(float(b[0]), float(b[1]), float(b[2])), stamp_s=stamp
             )
             for j, b in zip(ids, beta, strict=True)
         )
+        ranges = self._ranges(ids, rng.tolist(), stamp) if self.ranges else ()
         self.stats.detections += len(out)
+        self.stats.ranges += len(ranges)
         with self._cond:
             self._out, self._new, self._out_stamp = out, True, stamp
+            self._out_ranges = ranges
+
+    def _ranges(
+        self, ids: list[int], range_m: list[float], stamp_s: float
+    ) -> tuple[RangeMeasurement, ...]:
+        """The plausible ranges of one set (module docstring); the others counted."""
+        out = []
+        for j, r in zip(ids, range_m, strict=True):
+            if not math.isfinite(r):
+                self.drops.drop(DropReason.NONFINITE, f"range to {j}: {r}", DropScope.CAMERA)
+            elif not plausible_range(r):
+                self.drops.drop(DropReason.OUT_OF_RANGE, f"range to {j}: {r} m", DropScope.CAMERA)
+            else:
+                out.append(RangeMeasurement(target=int(j), range_m=float(r), stamp_s=stamp_s))
+        return tuple(out)
 
     # --- BearingSource --------------------------------------------------------------------------
     def poll(self) -> tuple[BearingMeasurement, ...] | None:
@@ -369,7 +399,13 @@ class CameraImageSource:
             if not self._new:
                 return None
             self._new = False
+            self._polled_ranges = self._out_ranges
             return self._out
+
+    def frame_ranges(self) -> tuple[RangeMeasurement, ...]:
+        """The ranges of the set the last :meth:`poll` returned (``()`` before the first)."""
+        with self._cond:
+            return self._polled_ranges
 
     def age_s(self, now_s: float) -> float:
         with self._cond:

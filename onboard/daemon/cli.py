@@ -241,6 +241,7 @@ def _run_agent(
             drops,
             _attitude(link, clock, c.clock),
             clock=clock.now,
+            ranges=fleet.camera_ranges,
         )
         device = camera_device if camera_device is not None else c.camera.device
         if device:

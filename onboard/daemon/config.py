@@ -95,6 +95,12 @@
                                       # else a local OpenCV capture (index, file or URL) as camera 0
     attitude_rate_hz = 100.0          # ATTITUDE stream asked of the autopilot (pymavlink link):
                                       # levelling needs roll and pitch at each frame's exposure
+    ranges = true                     # pass the markers' ranges (discs: apparent size; tags:
+                                      # pose) to the core with the bearings. Unset: on with
+                                      # [core] localization = "paper002" (its eq. 22 range
+                                      # terms) unless rigidity.maintenance is on, else off:
+                                      # paper 003's angle localization takes any range in
+                                      # place of its SfM distances
 
 Agent ids are the vehicle indices ``0..N-1`` (MAVLink system id = id + 1, PX4 SITL port
 14540 + id).
@@ -194,6 +200,8 @@ class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
     markers: str = ""
     device: str = ""
     attitude_rate_hz: float = 100.0
+    ranges: bool | None = None
+    """Feed the markers' ranges to the core (:attr:`Fleet.camera_ranges`; ``None``: unset)."""
 
 
 class SecuritySection(msgspec.Struct, forbid_unknown_fields=True):
@@ -231,6 +239,19 @@ class Fleet(msgspec.Struct, frozen=True):
     @property
     def n(self) -> int:
         return self.formation.n
+
+    @property
+    def camera_ranges(self) -> bool:
+        """Whether the camera source passes its ranges to the core (``[camera] ranges``).
+
+        Unset, only where a layer was built for them and nothing changes otherwise: paper 002's
+        localization (eq. 22) without the rigidity layer. Paper 003's angle localization
+        (:mod:`onboard.core.rigidity`) reads every range in ``own.ranges``, in place of the SfM
+        distances it flies on today, so it gets camera ranges only when the file asks."""
+        c = self.config
+        if c.camera.ranges is not None:
+            return c.camera.ranges
+        return c.core.localization == "paper002" and not c.rigidity.maintenance
 
     def mavlink_url(self, agent_id: int) -> str:
         """``[mavlink] url`` with ``{port}`` = ``port_base + port_stride * id`` and ``{id}``."""

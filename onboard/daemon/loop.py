@@ -55,7 +55,7 @@ from onboard.core.config import (
     ScaleGains,
 )
 from onboard.core.rigidity import estimate_uncertain
-from onboard.daemon.bearings import BearingSource
+from onboard.daemon.bearings import BearingSource, RangeSource
 from onboard.daemon.clock import Clock
 from onboard.daemon.config import Fleet
 from onboard.daemon.guards import (
@@ -424,7 +424,15 @@ class AgentDaemon:
         return self._rigid_cache[key]
 
     def _measurements(self, now_s: float, tel: Telemetry) -> OwnMeasurements:
+        """The core's own measurements: odometry, and a new camera frame's bearings and ranges
+        (the ranges only with the frame they belong to, like its bearings: the core keeps the
+        newest per target and uses them while fresh)."""
         frame = self.bearings.poll()
+        ranges = (
+            self.bearings.frame_ranges()
+            if frame is not None and isinstance(self.bearings, RangeSource)
+            else ()
+        )
         if frame:
             self._newest_frame_s = max(self._newest_frame_s, *(b.stamp_s for b in frame))
             self.metrics.frame_age_s.append(now_s - max(b.stamp_s for b in frame))
@@ -437,6 +445,7 @@ class AgentDaemon:
             v_body=odo.v_body,
             yaw_rate_rad_s=odo.yaw_rate_rad_s,
             bearings=frame or (),
+            ranges=ranges,
             odometry_stamp_s=odo.stamp_s,
         )
 
@@ -591,7 +600,7 @@ class AgentDaemon:
         out: list[Payload] = []
         if last is not None and MAX_CORE_DT_S < now_s - last <= MAX_GAP_S:
             n = math.ceil((now_s - last) / MAX_CORE_DT_S)
-            quiet = msgspec.structs.replace(own, bearings=())
+            quiet = msgspec.structs.replace(own, bearings=(), ranges=())
             for k in range(1, n):
                 t_k = last + (now_s - last) * k / n
                 _, early = self.core.step(t_k, msgspec.structs.replace(quiet, t_s=t_k), ())

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -236,3 +237,120 @@ def test_device_capture_reads_a_video_file(tmp_path: Path) -> None:
     assert src.poll() == () and src.stats.frames >= 1 and drops.total == 0
     with pytest.raises(OSError):
         DeviceCapture(str(tmp_path / "missing.avi"), src, lambda: 0.0)
+
+
+# ------------------------------------------------------------------ ranges (paper 002 eq. 22)
+def true_range(j: int) -> float:
+    return float(np.linalg.norm(P_NED[j] - P_NED[0]))
+
+
+def test_disc_ranges_go_out_with_their_bearings(payloads) -> None:
+    drops = DropCounter()
+    src = make_source(drops)
+    for data in payloads:
+        src.on_payload(data)
+    src.step()
+    assert src.frame_ranges() == ()  # nothing polled yet
+    frame = src.poll()
+    ranges = src.frame_ranges()
+    assert [m.target for m in frame] == [r.target for r in ranges] == [1, 2]
+    for r in ranges:
+        assert r.stamp_s == STAMP  # the frame's stamp, as its bearings
+        assert abs(r.range_m - true_range(r.target)) < 0.05 * true_range(r.target), r
+    assert src.stats.ranges == 2 and drops.snapshot() == {"camera_unknown_target": 1}
+    assert src.poll() is None and src.frame_ranges() == ranges  # the last polled set's
+
+
+class _Ranges(VisionPipeline):
+    """The real pipeline with the ranges of some vehicles replaced (a faulty fit)."""
+
+    def __init__(self, camera, ranges: dict[int, float]) -> None:
+        super().__init__(camera, MARKERS)
+        self.ranges = ranges
+
+    def process(self, image):
+        return [
+            replace(d, range_m=self.ranges.get(d.vehicle_id, d.range_m))
+            for d in super().process(image)
+        ]
+
+
+@pytest.mark.parametrize(
+    ("bad", "reason"),
+    [
+        (float("nan"), "camera_nonfinite"),
+        (float("inf"), "camera_nonfinite"),
+        (-2.0, "camera_out_of_range"),
+        (0.0, "camera_out_of_range"),
+        (1e7, "camera_out_of_range"),
+    ],
+)
+def test_implausible_ranges_are_counted_and_dropped_the_bearing_kept(payloads, bad, reason):
+    drops = DropCounter()
+    src = CameraImageSource(0, [_Ranges(FRONT, {}), _Ranges(BACK, {2: bad})], [0, 1, 2], drops,
+                            lambda: AttitudeSample(STAMP, ROLL, PITCH), start=False)  # fmt: skip
+    for data in payloads:
+        src.on_payload(data)
+    src.step()
+    assert [m.target for m in src.poll()] == [1, 2]  # both bearings
+    assert [r.target for r in src.frame_ranges()] == [1]  # vehicle 2's range is not passed
+    assert drops.snapshot() == {"camera_unknown_target": 1, reason: 1}
+
+
+def test_ranges_off_gives_bearings_only(payloads) -> None:
+    drops = DropCounter()
+    src = CameraImageSource(0, [_Ranges(FRONT, {1: float("nan")}), _Ranges(BACK, {})], [0, 1, 2],
+                            drops, lambda: AttitudeSample(STAMP, ROLL, PITCH), start=False,
+                            ranges=False)  # fmt: skip
+    for data in payloads:
+        src.on_payload(data)
+    src.step()
+    assert [m.target for m in src.poll()] == [1, 2] and src.frame_ranges() == ()
+    assert drops.snapshot() == {"camera_unknown_target": 1}  # nothing looked at, nothing counted
+
+
+def _telemetry():
+    """A real telemetry snapshot of a PX4 autopilot hovering (the daemon's odometry reads it)."""
+    from pymavlink.dialects.v20 import common as dialect
+
+    from messages import mavlink as mv
+    from onboard.autopilot.base import Flavour, LinkConfig, LinkCounters, StreamState
+    from onboard.autopilot.states import Saturated, TelemetryState, snapshot
+
+    st = TelemetryState(flavour=Flavour.PX4)
+    t = time.monotonic()
+    st.apply(dialect.MAVLink_heartbeat_message(2, 12, mv.BASE_MODE_CUSTOM, 0, 3, 3), t)
+    st.apply(dialect.MAVLink_attitude_message(1000, 0.0, 0.0, 0.3, 0, 0, 0.0), t)
+    st.apply(dialect.MAVLink_local_position_ned_message(1000, 0, 0, -5.0, 0, 0, 0), t)
+    return snapshot(st, t, LinkConfig(), 1, StreamState.IDLE,
+                    Saturated((0.0, 0.0, 0.0), 0.0, False, False), LinkCounters())  # fmt: skip
+
+
+def test_the_daemon_hands_a_frames_ranges_to_the_core(payloads, tmp_path) -> None:
+    """``AgentDaemon._measurements``: the polled frame's ranges ride with its bearings into
+    ``own.ranges``, once; the core's camera layer keeps them per target."""
+    from types import SimpleNamespace
+
+    from groundstation.demo import DemoPorts, plan_formation, write_demo_files
+    from onboard.daemon.clock import WallClock
+    from onboard.daemon.config import load_fleet
+    from onboard.daemon.loop import AgentDaemon
+
+    path = write_demo_files(tmp_path, plan_formation(3, seed=1), DemoPorts(zenoh=1, mavlink=2,
+                            gcs=3), "t", "formation-active", localization="paper002")  # fmt: skip
+    fleet = load_fleet(path)
+    assert fleet.camera_ranges  # paper002 without the rigidity layer: on by default
+    src = make_source(DropCounter())
+    daemon = AgentDaemon(fleet, 0, SimpleNamespace(), SimpleNamespace(), src, WallClock(),
+                         DropCounter(), "x")  # fmt: skip
+    for data in payloads:
+        src.on_payload(data)
+    src.step()
+    own = daemon._measurements(STAMP + 0.05, _telemetry())
+    assert [r.target for r in own.ranges] == [1, 2]
+    assert all(r.stamp_s == STAMP for r in own.ranges)
+    again = daemon._measurements(STAMP + 0.06, _telemetry())
+    assert again.bearings == () and again.ranges == ()  # a frame is handed over once
+    daemon.core.step(own.t_s, own)
+    assert daemon.core.bearings.out_targets == [1, 2]  # the demo's complete graph
+    assert daemon.core.bearings.range_out == {r.target: (STAMP, r.range_m) for r in own.ranges}

@@ -133,7 +133,8 @@ PAPER_DEFAULTS = {
     "eigen_k_n": 0.2, "rigidity_period_s": 0.0, "rigidity_warmup_s": 0.0,
 }  # fmt: skip
 """The flat configuration's defaults before it was split into groups (issue 21)."""
-ADDED_DEFAULTS = {"localization": "paper000", "gradloc_range_weight": 1.0}
+ADDED_DEFAULTS = {"localization": "paper000", "gradloc_range_weight": 1.0,
+                  "gradloc_measured_range_weight": 1.0}  # fmt: skip
 """Fields added since (issue 25: paper 002's localization, off by default)."""
 
 

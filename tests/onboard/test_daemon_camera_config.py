@@ -100,3 +100,37 @@ def test_agent_refuses_camera_bearings_without_files(tmp_path: Path) -> None:
         app, ["agent", "--id", "0", "--config", str(path), "--bearings", "sonar"]
     )
     assert result.exit_code == 2 and "sim or camera" in result.output
+
+
+@pytest.mark.parametrize(
+    "text,expected",
+    [
+        ("", False),  # paper 000 does not read ranges: nothing changes
+        ('[core]\nlocalization = "paper002"\n', True),  # its eq. 22 terms want them
+        ('[core]\nlocalization = "paper002"\n[camera]\nranges = false\n', False),
+        ("[camera]\nranges = true\n", True),
+    ],
+)
+def test_camera_ranges_default_to_where_a_layer_uses_them(tmp_path, text, expected) -> None:
+    fleet = load_fleet(write(tmp_path, text))
+    assert fleet.camera_ranges is expected
+
+
+def test_camera_ranges_stay_off_for_the_rigidity_layer_unless_asked(tmp_path: Path) -> None:
+    """Paper 003's angle localization takes any range in place of its SfM distances: with
+    rigidity maintenance on, camera ranges only when the file says so."""
+    from groundstation.demo import DemoPorts, plan_formation, write_demo_files
+
+    path = write_demo_files(tmp_path, plan_formation(4, seed=0), DemoPorts(zenoh=1, mavlink=2,
+                            gcs=3), "t", "formation-active", localization="paper002")  # fmt: skip
+    fleet = load_fleet(path)
+    assert fleet.config.rigidity.maintenance and not fleet.camera_ranges
+    path.write_text(path.read_text().replace("[camera]", "[camera]\nranges = true", 1))
+    if "[camera]" not in path.read_text():
+        path.write_text(path.read_text() + "\n[camera]\nranges = true\n")
+    assert load_fleet(path).camera_ranges
+
+
+def test_a_bad_camera_ranges_value_is_named(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"camera\.ranges"):
+        load_fleet(write(tmp_path, '[camera]\nranges = "yes"\n'))

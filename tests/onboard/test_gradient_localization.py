@@ -31,10 +31,11 @@ DT_S = 0.01
 STEPS = 1500
 
 
-def _fake_scale(i: int, yaw: float, ranges: dict[int, float]):
-    """What the layer reads from paper 000's scale layer: the filter's yaw (the known rotation)
-    and the SfM inverse distances of the reciprocal edges."""
+def _fake_scale(i: int, yaw: float, ranges: dict[int, float], converged: bool = False):
+    """What the layer reads from paper 000's scale layer: the filter's yaw (the known rotation),
+    the SfM inverse distances of the reciprocal edges and whether they have converged."""
     return SimpleNamespace(
+        scale_converged=lambda: converged,
         localization=SimpleNamespace(yaw_hat_rad=yaw),
         reciprocal=sorted(ranges),
         chi_hat=lambda j: 1.0 / ranges[j] if j in ranges else None,
@@ -49,10 +50,12 @@ def _fake_bearings(i: int, edges, p, yaw):
         out_targets=sorted(j for a, j in edges if a == i),
         in_sources=sorted(a for a, j in edges if j == i),
         beta_out=out,
+        range_out={},
     )
 
 
-def _team(p_prior: np.ndarray, ranges: dict[tuple[int, int], float], edges=EDGES):
+def _team(p_prior: np.ndarray, ranges: dict[tuple[int, int], float], edges=EDGES,
+          sfm_converged: bool = False, measured_weight: float = 1.0):  # fmt: skip
     n = len(P_TRUE)
     layers, tables = [], []
     for i in range(n):
@@ -63,9 +66,10 @@ def _team(p_prior: np.ndarray, ranges: dict[tuple[int, int], float], edges=EDGES
         mine = {b: d for (a, b), d in ranges.items() if a == i}
         mine.update({a: d for (a, b), d in ranges.items() if b == i})
         layer = GradientLocalization(
-            graph, GradientLocalizationGains(localization="paper002"), peers,
-            _fake_bearings(i, edges, P_TRUE, YAW_TRUE),  # type: ignore[arg-type]
-            _fake_scale(i, float(YAW_TRUE[i]), mine),  # type: ignore[arg-type]
+            graph, GradientLocalizationGains(localization="paper002",
+                                             gradloc_measured_range_weight=measured_weight),
+            peers, _fake_bearings(i, edges, P_TRUE, YAW_TRUE),  # type: ignore[arg-type]
+            _fake_scale(i, float(YAW_TRUE[i]), mine, sfm_converged),  # type: ignore[arg-type]
             peers.drops,
         )  # fmt: skip
         for kind, route in layer.routes.items():
@@ -82,9 +86,10 @@ def _own(k: int, dt: float = DT_S) -> Own:
                yaw_rad=0.0, odometry_stamp_s=t, raw=raw)  # fmt: skip
 
 
-def _fly(layers, tables, steps: int) -> None:
+def _fly(layers, tables, steps: int, new_ranges: bool = True) -> None:
     """Synchronous steps; every share reaches its neighbours at the next step (through the
-    codec, as between daemons)."""
+    codec, as between daemons); a new camera frame every step (its ranges too unless not
+    ``new_ranges``)."""
     inbox: list = []
     for k in range(steps):
         own = _own(k)
@@ -97,6 +102,9 @@ def _fly(layers, tables, steps: int) -> None:
         for layer in layers:  # a camera frame every step
             b = layer.bearings.beta_out
             b.update({j: (own.t_s, beta) for j, (_, beta) in b.items()})
+            r = layer.bearings.range_out  # and its ranges, if it measures any
+            if new_ranges:
+                r.update({j: (own.t_s, d) for j, (_, d) in r.items()})
             out: list = []
             layer.step(own, out)
             inbox += [decode(encode(m), PeerPayload) for m in out]
@@ -259,3 +267,109 @@ def test_the_fleet_file_selects_it_and_refuses_a_bad_value(tmp_path) -> None:
         load_fleet(path)
     msg = str(info.value)
     assert "\n" not in msg and "core.localization" in msg and "paper003" in msg, msg
+
+
+# --------------------------------------------------------------- measured ranges (eq. 22)
+NO_SFM = tuple(e for e in EDGES if e != (1, 0))  # no reciprocal pair: no SfM distance anywhere
+
+
+def _true_range(i: int, j: int) -> float:
+    return float(np.linalg.norm(P_TRUE[j] - P_TRUE[i]))
+
+
+def test_measured_ranges_alone_give_the_true_scale() -> None:
+    """No SfM edge at all: the camera's ranges on two out-edges fix the metric scale, and eq.
+    17's constraint goes as soon as an agent uses one."""
+    c = P_TRUE.mean(axis=0)
+    layers, tables = _team(c + 0.6 * (P_TRUE - c) + 0.3, {}, NO_SFM)
+    assert all(layer.lambda_min == 1.0 for layer in layers)
+    layers[0].bearings.range_out[1] = (0.0, _true_range(0, 1))
+    layers[2].bearings.range_out[3] = (0.0, _true_range(2, 3))
+    _fly(layers, tables, STEPS)
+    t_hat = np.array([layer.p_hat_ned for layer in layers])
+    err = np.linalg.norm((t_hat - t_hat.mean(0)) - (P_TRUE - c), axis=1).max()
+    assert err < 1e-3 and abs(_size_error(t_hat, P_TRUE)) < 1e-4, err
+    for i, layer in enumerate(layers):
+        for j, lam in layer.lam.items():
+            assert lam == pytest.approx(_true_range(i, j), abs=1e-3)
+    assert layers[0].range_terms == layers[2].range_terms == STEPS - 1
+    assert layers[0].status()["range_terms"] == STEPS - 1  # AgentStatus.range_terms
+    assert layers[1].range_terms == layers[3].range_terms == 0
+    assert layers[0].lambda_min is None and layers[1].lambda_min == 1.0
+    assert all(not peers.drops for peers in tables)
+
+
+def test_a_measured_range_replaces_an_unconverged_sfm_distance() -> None:
+    """Edge (0, 1) has an SfM distance 20% long, not converged yet, and a measured range that
+    is right: the scale follows the measurement."""
+    c = P_TRUE.mean(axis=0)
+    d01 = _true_range(0, 1)
+    layers, tables = _team(c + 0.6 * (P_TRUE - c), {(0, 1): 1.2 * d01})
+    layers[0].bearings.range_out[1] = (0.0, d01)
+    layers[1].bearings.range_out[0] = (0.0, d01)
+    _fly(layers, tables, STEPS)
+    t_hat = np.array([layer.p_hat_ned for layer in layers])
+    assert abs(_size_error(t_hat, P_TRUE)) < 1e-4
+    assert layers[0].lam[1] == pytest.approx(d01, abs=1e-3)
+
+
+def test_a_stale_range_is_not_used() -> None:
+    layers, tables = _team(P_TRUE.copy(), {}, NO_SFM)
+    layers[0].bearings.range_out[1] = (-10.0, 1.0)  # measured 10 s ago (peer_timeout 0.5 s)
+    before = layers[0].lam[1]
+    _fly(layers, tables, 50, new_ranges=False)
+    assert layers[0].range_terms == 0 and layers[0].lambda_min == 1.0
+    assert layers[0].lam[1] == pytest.approx(before, abs=1e-6)  # prior = truth: nothing moves
+
+
+def test_bad_ranges_are_counted_in_the_core_and_never_reach_the_state() -> None:
+    """Through the real camera layer: NaN, infinite, negative, absurd and NaN-stamped ranges are
+    counted (``bad_range``) and dropped; a good one reaches the layer; the estimate stays
+    finite."""
+    import msgspec
+
+    from messages.agent import RangeMeasurement
+
+    core = AgentCore(_config("paper002"))
+    layer = core.gradient_localization
+    assert layer is not None
+    bad = (
+        RangeMeasurement(1, math.nan, 0.05),
+        RangeMeasurement(1, math.inf, 0.05),
+        RangeMeasurement(2, -3.0, 0.05),
+        RangeMeasurement(2, 1e300, 0.05),
+        RangeMeasurement(1, 4.0, math.nan),
+    )
+    own = OwnMeasurements(t_s=0.0, yaw_rad=0.0, v_body=(0.2, 0.0, 0.0), yaw_rate_rad_s=0.0)
+    core.step(0.0, own)
+    core.step(0.05, msgspec.structs.replace(own, t_s=0.05, ranges=bad))
+    core.step(0.06, msgspec.structs.replace(own, t_s=0.06, ranges=bad))  # seen: counted once
+    # counted once each, but the NaN stamp (never "seen before") at every step
+    assert core.dropped.get("bad_range") == 6, core.dropped
+    assert core.bearings.range_out == {}
+    good = (RangeMeasurement(1, 4.0, 0.07), RangeMeasurement(3, 4.0, 0.07))  # 3: no such edge
+    core.step(0.07, msgspec.structs.replace(own, t_s=0.07, ranges=good))
+    assert core.bearings.range_out == {1: (0.07, 4.0)}
+    assert all(math.isfinite(x) for x in layer.p_hat_ned)
+    assert all(math.isfinite(x) for x in layer.lam.values())
+    # and a NaN that got past the camera layer (a core fed directly) is no range term
+    core.bearings.range_out[1] = (0.08, math.nan)
+    core.step(0.08, msgspec.structs.replace(own, t_s=0.08))
+    assert layer.range_terms == 0
+    assert all(math.isfinite(x) for x in (*layer.p_hat_ned, *layer.lam.values()))
+
+
+@pytest.mark.parametrize(("w_measured", "expected"), [(1.0, 1.1), (3.0, 1.05)])
+def test_with_a_converged_sfm_distance_both_terms_count_by_their_weights(w_measured, expected):
+    """Both on edge (0, 1) in both directions: lambda settles at the weighted mean of the SfM
+    distance (1.2 d, weight 1) and the measured range (d, weight ``w_measured``)."""
+    c = P_TRUE.mean(axis=0)
+    d01 = _true_range(0, 1)
+    layers, tables = _team(c + 0.6 * (P_TRUE - c), {(0, 1): 1.2 * d01}, sfm_converged=True,
+                           measured_weight=w_measured)  # fmt: skip
+    layers[0].bearings.range_out[1] = (0.0, d01)
+    layers[1].bearings.range_out[0] = (0.0, d01)
+    _fly(layers, tables, STEPS)
+    t_hat = np.array([layer.p_hat_ned for layer in layers])
+    assert _size_error(t_hat, P_TRUE) == pytest.approx(expected - 1.0, abs=1e-3)
+    assert layers[0].lam[1] == pytest.approx(expected * d01, rel=1e-3)
