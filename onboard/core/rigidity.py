@@ -35,6 +35,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from messages.agent import OwnMeasurements
@@ -408,8 +409,9 @@ class RigidityLayer:
             self._eigen_step(t_s, p_own, p_est, fresh, cand, s_cand, seq, outbox)
         elif self._last_share is not None:
             # still waiting: send the last round again, so that a share lost on the way
-            # stalls the neighbours one step period instead of a whole round trip
-            outbox.append(self._last_share)
+            # stalls the neighbours one step period instead of a whole round trip; numbered
+            # by this step, or the receivers' replay window counts the copy as a replay
+            outbox.append(msgspec.structs.replace(self._last_share, seq=seq))
         self.agreed = self._agreement(fresh, cand)
         self._track_uncertainty(t_s)
 

@@ -52,6 +52,8 @@ def test_demo_finds_metric_scale_and_holds_the_formation(tmp_path, recording_sch
     assert 'dir = "keys"' in (tmp_path / "fleet.toml").read_text()
     dropped = summary["dropped_by_reason"]
     assert not [k for k in dropped if k.startswith("mavlink_")], dropped  # no rejection
+    # nothing replays in a clean flight (the rigidity layer's re-sent shares were ~1,000 per run)
+    assert dropped.get("seq_replay", 0) == 0, dropped
     log = (tmp_path / "sim.log").read_text().splitlines()[-1]
     assert "signed_ok=" in log and "unsigned_rejected" not in log, log
     # the run's recording opens in Foxglove: every channel schema'd, the team in a 3D scene

@@ -13,6 +13,7 @@ from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 from onboard.core.config import AgentConfig, build_config
 from onboard.core.peers import Drops, PeerTable
 from onboard.core.rigidity import ROUND_TIMEOUT_S, RigidityLayer
+from onboard.daemon.replay import SeqWindow
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph
 
@@ -220,10 +221,19 @@ def test_a_round_waits_for_every_candidate_then_times_out() -> None:
     out: list = []
     a.advance(0.03, 0.01, _own(0, 0.03), float(YAW[0]), (0.0, 0.0, 0.0), {}, 3, out)
     assert a.rounds == 4  # the neighbours' round 3 was there
+    first = [m for m in out if isinstance(m, RigidityEigenShare)]
     out = []
     a.advance(0.04, 0.01, _own(0, 0.04), float(YAW[0]), (0.0, 0.0, 0.0), {}, 4, out)
     assert a.rounds == 4  # waiting: it sends round 4 again (a lost copy costs one step)
-    assert [m.round for m in out if isinstance(m, RigidityEigenShare)] == [4]
+    again = [m for m in out if isinstance(m, RigidityEigenShare)]
+    assert [m.round for m in again] == [4]
+    # the copy is numbered by this step, so a receiver that has the first one takes it as
+    # new instead of counting it as a replay (it was ~1,000 ``seq_replay`` per demo)
+    window = SeqWindow()
+    assert window.admit(0, RigidityEigenShare, first[0].seq, first[0].stamp_s, 0.04) is None
+    assert window.admit(0, RigidityEigenShare, again[0].seq, again[0].stamp_s, 0.04) is None
+    assert np.array_equal(again[0].state, first[0].state)
+    assert again[0].stamp_s == first[0].stamp_s
     t = 0.03 + ROUND_TIMEOUT_S + 0.01  # nobody answered: go on with what it has
     a.advance(t, 0.01, _own(0, t), float(YAW[0]), (0.0, 0.0, 0.0), {}, 5, out)
     assert a.rounds == 5 and any(isinstance(m, RigidityEigenShare) for m in out)
