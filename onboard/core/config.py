@@ -92,6 +92,13 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
     """While an observer's corrections moved its ``chihat`` by more than this fraction within
     the last ``sfm_wander_window_s`` its e-foldings are held below :attr:`converged_e_folds`:
     an estimate that wanders is not converged (0: not watched, paper 000). Not in the paper."""
+    sfm_bias_gain: float = 0.0
+    """Gain ``gamma`` (1/s^2) of each SfM observer's estimate of its edge's relative velocity
+    bias, which it then subtracts (:func:`~onboard.estimation.sfm_observer.bias_rate`,
+    docs/equations.md "Relative velocity bias of an SfM edge"; 0: not estimated, paper 000's
+    observer). Not in the paper; an experiment (issue 22, docs/sim.md)."""
+    sfm_bias_max_m_s: float = 0.1
+    """Largest relative velocity bias an SfM observer may estimate."""
     chi_min_inv_m: float = 0.02
     """SfM estimates below this (distance above 50 m) are not used as virtual measurements."""
     # localization (eq. 6)
@@ -125,7 +132,13 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
             raise ValueError("excitation_relay_every must be >= 1")
         if self.p_norm >= 0.0:
             raise ValueError("p_norm must be negative (a soft minimum)")
-        for name in ("sfm_bias_speed_m_s", "sfm_folds_forget_s", "sfm_wander_max"):
+        for name in (
+            "sfm_bias_speed_m_s",
+            "sfm_folds_forget_s",
+            "sfm_wander_max",
+            "sfm_bias_gain",
+            "sfm_bias_max_m_s",
+        ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not self.sfm_wander_window_s > 0.0:

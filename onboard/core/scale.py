@@ -123,6 +123,8 @@ class Scale:
                 ),
                 wander_max=gains.sfm_wander_max,
                 folds_cap=0.9 * gains.converged_e_folds,
+                bias_gain=gains.sfm_bias_gain,
+                bias_max_m_s=gains.sfm_bias_max_m_s,
             )
         # time alignment of the SfM observers: peer ``(u_x, u_y, u_z, w, yaw)`` histories, the
         # observer's own clock, frames to replay

@@ -70,6 +70,10 @@
     wander_window_s = 2.0             # an estimate corrected by more than wander_max within
     wander_max = 0.02                 # wander_window_s is not converged (active motion on)
     folds_forget_s = 0.0              # forget past excitation over this time (0: never)
+    bias_gain = 0.0                   # estimate and subtract each edge's relative velocity
+                                      # bias with this gain, 1/s^2 (0: off; an experiment,
+                                      # docs/equations.md)
+    bias_max_m_s = 0.1                # ... at most this large
     warmup_s = 5.0                    # no rigidity action for this long after the core starts,
                                       # while angle localization and the eigen-estimate converge
     eigen = "distributed"             # lambda from the distributed subspace iteration, or
@@ -187,6 +191,8 @@ class SfmSection(msgspec.Struct, forbid_unknown_fields=True):
     wander_window_s: float = 2.0
     wander_max: float = 0.02
     folds_forget_s: float = 0.0
+    bias_gain: float = 0.0
+    bias_max_m_s: float = 0.1
 
 
 class CoreSection(msgspec.Struct, forbid_unknown_fields=True):

@@ -150,6 +150,8 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
         sfm_wander_window_s=c.sfm.wander_window_s,
         sfm_wander_max=c.sfm.wander_max,
         sfm_folds_forget_s=c.sfm.folds_forget_s,
+        sfm_bias_gain=c.sfm.bias_gain,
+        sfm_bias_max_m_s=c.sfm.bias_max_m_s,
     )
     safety = Safety(
         v_max_m_s=c.limits.max_speed_m_s, yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s

@@ -159,6 +159,53 @@ def observer_step(
     return beta_hat_new, chi_new, beta_new, xi_sq, d_chi, -chi_new * chi_new * ub
 
 
+def bias_rate(
+    beta_hat: Vec3,
+    beta: Vec3,
+    u_ij: Vec3,
+    chi_hat: float,
+    gate: float,
+    bias_gain: float,
+) -> Vec3:
+    """Correction of the relative velocity bias estimate ``deltahat`` (docs/equations.md,
+    "Relative velocity bias of an SfM edge"; not in the paper):
+
+        deltahat_dot = -(gamma / chihat) (P xi - g v1 v1^T xi),   v1 = P u / |P u|,
+
+    with ``u`` the bias-corrected relative velocity ``u_ij + deltahat`` and ``g`` the excitation
+    gate. ``P xi`` is the bearing motion the model does not explain; along ``v1`` the inverse
+    depth explains it as well, so that part is learned only as far as the gate keeps ``chihat``
+    from being corrected (``g = 0``: a still team, all of it is bias). ``1/chihat`` makes the
+    ``(xi, delta)`` pair ``s^2 + h s + gamma`` at any distance."""
+    x0, x1, x2 = beta_hat[0] - beta[0], beta_hat[1] - beta[1], beta_hat[2] - beta[2]
+    bx = beta[0] * x0 + beta[1] * x1 + beta[2] * x2
+    p0, p1, p2 = x0 - beta[0] * bx, x1 - beta[1] * bx, x2 - beta[2] * bx  # P xi
+    bu = beta[0] * u_ij[0] + beta[1] * u_ij[1] + beta[2] * u_ij[2]
+    o0, o1, o2 = u_ij[0] - beta[0] * bu, u_ij[1] - beta[1] * bu, u_ij[2] - beta[2] * bu  # P u
+    lam = o0 * o0 + o1 * o1 + o2 * o2
+    if lam > 1e-12 and gate > 0.0:
+        k = gate * (o0 * p0 + o1 * p1 + o2 * p2) / lam
+        p0, p1, p2 = p0 - k * o0, p1 - k * o1, p2 - k * o2
+    c = -bias_gain / max(chi_hat, 1e-6)
+    return (c * p0, c * p1, c * p2)
+
+
+def bias_update(delta_hat: Vec3, d_delta: Vec3, dt: float, bias_max_m_s: float) -> Vec3:
+    """One Euler step of :func:`bias_rate`, the estimate kept within ``|deltahat| <=
+    bias_max_m_s`` (docs/equations.md, "Relative velocity bias of an SfM edge"): an odometry
+    bias is a few cm/s, and a larger estimate is the inverse depth's error leaking into it."""
+    x = delta_hat[0] + dt * d_delta[0]
+    y = delta_hat[1] + dt * d_delta[1]
+    z = delta_hat[2] + dt * d_delta[2]
+    n = math.sqrt(x * x + y * y + z * z)
+    if not math.isfinite(n):
+        return delta_hat
+    if n > bias_max_m_s:
+        s = bias_max_m_s / n
+        return (x * s, y * s, z * s)
+    return (x, y, z)
+
+
 def e_fold_increment(dt: float, gate: float, alpha: float, lam: float) -> float:
     """``dt sqrt(g alpha lambda)``: the e-foldings one step gives the critically damped error
     pair of the SVD-shaped observer (:attr:`SfmEdge.e_folds`)."""
@@ -276,12 +323,27 @@ class SfmEdge:
     """Net correction-driven relative change of ``chihat`` over the last wander window (white
     odometry noise averages out of it; a bias the observer keeps fighting does not)."""
     _wander_down: WindowAverage | None = None
+    bias_gain: float = 0.0
+    """Gain ``gamma`` (1/s^2) of the relative velocity bias estimate (:func:`bias_rate`; 0: not
+    estimated, paper 000's observer). Not in the paper."""
+    bias_max_m_s: float = 0.1
+    """Largest bias estimate (:func:`bias_update`)."""
+    delta_hat: Vec3 = (0.0, 0.0, 0.0)
+    """Estimate of the relative velocity odometry error ``delta = u_true - u_ij`` (m/s, ``i``'s
+    body frame); the observer runs on ``u_ij + deltahat``."""
+
+    def corrected(self, u_ij: Vec3) -> Vec3:
+        """``u_ij + deltahat``: the relative velocity with the estimated bias removed."""
+        d = self.delta_hat
+        return (u_ij[0] + d[0], u_ij[1] + d[1], u_ij[2] + d[2])
 
     def new_bearing(self, beta: Vec3, stamp_s: float, t_s: float, u_ij: Vec3, w_i: float) -> None:
         """Take a camera frame captured at ``stamp_s`` and predict it forward to ``t_s``."""
         if stamp_s <= self.last_frame_s:
             return
         self.last_frame_s = stamp_s
+        if self.bias_gain > 0.0:
+            u_ij = self.corrected(u_ij)
         self.beta_pred = predict_bearing(beta, self.chi_hat, u_ij, w_i, t_s - stamp_s)
         if self.beta_hat is None:
             self.beta_hat = self.beta_pred
@@ -311,8 +373,12 @@ class SfmEdge:
         beta, beta_hat = self.beta_pred, self.beta_hat
         if beta is None or beta_hat is None or dt <= 0.0:
             return
+        if self.bias_gain > 0.0:
+            u_ij = self.corrected(u_ij)
         self.excitation = excitation(beta, u_ij)
         self.gate = gate = excitation_gate(self.excitation, self.bias_speed_m_s)
+        if self.bias_gain > 0.0:
+            d_delta = bias_rate(beta_hat, beta, u_ij, self.chi_hat, gate, self.bias_gain)
         beta_hat_new, chi_new, beta_new, xi_sq, d_chi, chi_rate = observer_step(
             beta_hat, self.chi_hat, beta, u_ij, w_i, dt,
             self.alpha, self.h_other, self.h_floor, gate,
@@ -334,5 +400,7 @@ class SfmEdge:
         self.beta_pred = beta_new
         self.beta_hat = beta_hat_new
         self.chi_hat = chi_new
+        if self.bias_gain > 0.0:
+            self.delta_hat = bias_update(self.delta_hat, d_delta, dt, self.bias_max_m_s)
         self.t_s = t_s
         self.chi_rate = chi_rate
