@@ -224,11 +224,12 @@ def levelled_bearing_sigma_rad(
     the frame: ``sqrt(sigma^2 + tilt_sigma^2 max_e lambda_max(J_e^T J_e))``. The tilt error is
     common to a frame's bearings; the filter treats it as independent (a small overstatement of
     the information, bounded by the inflation)."""
-    b = np.asarray(beta_body, dtype=float).reshape(-1, 3)
-    worst = 0.0
-    for row in b:
-        j = level_jacobian(row, roll_rad, pitch_rad)[:, 3:]
-        worst = max(worst, float(np.linalg.eigvalsh(j.T @ j)[-1]))
+    bl = level(np.asarray(beta_body, dtype=float).reshape(-1, 3), roll_rad, pitch_rad)
+    c1 = np.cross(tilt_matrix(0.0, pitch_rad) @ _E1, bl)  # the tilt columns, per bearing
+    c2 = np.cross(_E2, bl)
+    a, b, c = np.sum(c1 * c1, axis=1), np.sum(c2 * c2, axis=1), np.sum(c1 * c2, axis=1)
+    lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + c * c)  # lambda_max of [[a, c], [c, b]]
+    worst = float(np.max(lam)) if len(lam) else 0.0
     return float(math.sqrt(sigma_rad**2 + tilt_sigma_rad**2 * worst))
 
 
