@@ -20,6 +20,13 @@ origin at the centre of the floor, so ``|x|, |y| <= 3.25``, ``-3 <= z <= 0``):
 
 Paper 001's experiment uses real quadrotors and a joystick, and its text gives neither the
 duration nor the noise levels; these values are this runner's.
+
+The same filter on today's ``R^3 x S^1`` multicopters, which roll and pitch
+(:func:`tilted_team`, :func:`run_tilted_team`, ``python benchmarks/ekf_tilted.py``): their
+camera bearings are in the tilted body frame and the autopilot reports the attitude; the
+``unlevelled`` path levels them with it (:mod:`onboard.estimation.se3_inputs`,
+docs/equations.md "Tilted multicopters") and is compared with heading-frame inputs computed
+from the truth and with the filter run natively on the tilted frames.
 """
 
 from __future__ import annotations
@@ -513,7 +520,9 @@ def run_tilted_team(
     heading-frame poses relative to agent 0 (``w = (0, 0, psidot)``); the un-levelled path
     interpolates the autopilot's attitude at each frame (:class:`AttitudeBuffer`), levels with
     it and inflates the noise by ``cfg.attitude_noise_rad`` through the Jacobians
-    (:mod:`onboard.estimation.se3_inputs`). The native path estimates tilted-body poses from the
+    (:mod:`onboard.estimation.se3_inputs`); the attitude samples up to 50 ms after a frame are
+    in the buffer when the frame is processed (its detection takes longer), a frame without
+    one within 0.25 s is counted (``skipped["no_attitude"]``) and skipped. The native path estimates tilted-body poses from the
     raw inputs. All start from the same prior: the true relative poses 30% too large, 0.3 m
     of noise and the yaws 10 degrees off (the native path's tilts from the first attitude
     sample).
