@@ -27,6 +27,22 @@ Bad input is counted (:attr:`EkfLoop.counts`) and skipped, never raised: non-fin
 bearings or estimates, samples older than the filter's time by more than ``late_s`` (stale),
 bearings that are not unit vectors or name a vehicle not in the state.
 
+Tilted vehicles (un-levelled bearings plus the autopilot's attitude): a caller with a vehicle's
+raw sensors (the flight stack, a recording of camera bearings and ATTITUDE) feeds
+:meth:`EkfLoop.add_attitude` (ATTITUDE's roll, pitch, yaw) or
+:meth:`EkfLoop.add_attitude_quaternion` (ATTITUDE_QUATERNION), then
+:meth:`EkfLoop.add_body_frame` (tilted body-frame or camera-frame bearings) and
+:meth:`EkfLoop.add_body_motion` (tilted body-frame velocity, gyro ``(p, q, r)``). They are
+levelled with the attitude interpolated at their stamps (:mod:`onboard.estimation.se3_inputs`:
+``T beta``, ``T v``, the Euler yaw rate; why levelling and not the filter on tilted frames:
+that module's doc and docs/equations.md) and enter as the levelled samples above, their noise
+inflated by ``attitude_sigma_rad`` through the Jacobians. The daemons' messages do not carry
+roll and pitch (:class:`messages.peer.BearingShare` has the yaw only): the daemons level their
+bearings before sending them, so ``gcs estimate`` keeps taking their levelled samples. Bad
+attitude is counted by name (``nonfinite_attitude``, ``non_unit_quaternion``,
+``attitude_out_of_range``, ``not_a_rotation``, ``stale_attitude``) and skipped; a body sample
+with no attitude within ``attitude_max_gap_s`` of its stamp counts ``no_attitude``.
+
 Cross-check: each vehicle's EKF pose in the reference's frame beside the daemons' estimates
 expressed in the same frame (``R_z(psi_ref)^T (p_j - p_ref)``, ``psi_j - psi_ref``; the daemons'
 shared frame is arbitrary, only relative poses compare). The disagreement is the distance
@@ -44,7 +60,8 @@ from typing import Any
 
 import numpy as np
 
-from messages.peer import BearingShare, MotionShare
+from messages.peer import BearingShare, MotionShare, TargetBearing
+from onboard.estimation import se3_inputs
 from onboard.estimation.se3_ekf import (
     Se3EkfState,
     initial_state,
@@ -54,6 +71,7 @@ from onboard.estimation.se3_ekf import (
     scale_direction,
     update,
 )
+from onboard.estimation.se3_inputs import AttitudeBuffer, BadAttitude
 from onboard.geometry import FloatArray, rot_z
 
 DEFAULT_MAX_DISAGREEMENT_M = 1.5
@@ -84,6 +102,11 @@ class EkfLoopConfig:
     from an uninformed prior is overconfident until the motion has revealed the scale."""
     alarm_hold_s: float = 1.0
     """The disagreement must last this long to raise the alarm; it clears below 0.8 x bound."""
+    attitude_sigma_rad: float = 0.0
+    """Standard deviation of the autopilot's roll and pitch, each (tilted vehicles only)."""
+    attitude_max_gap_s: float = 0.25
+    """A body sample levels with the attitude interpolated at its stamp, or the nearest one
+    within this; without one it is counted (``no_attitude``) and skipped."""
     """A daemon estimate older than this (vs. the filter's time) is not compared."""
 
 
@@ -208,6 +231,11 @@ class EkfLoop:
     over_since_s: dict[int, float] = field(default_factory=dict)
     dropped: set[int] = field(default_factory=set)
     """Vehicles dropped as silent and not back yet."""
+    attitudes: dict[int, AttitudeBuffer] = field(default_factory=dict)
+    """Tilted vehicles' attitude histories."""
+    motion_std: dict[int, tuple[float, float]] = field(default_factory=dict)
+    """Input standard deviations (v m/s, w rad/s) of a vehicle whose latest odometry was
+    levelled (:meth:`add_body_motion`); others use the configuration's."""
     max_events: int = 200
 
     def __post_init__(self) -> None:
@@ -326,7 +354,10 @@ class EkfLoop:
 
     # --- samples -----------------------------------------------------------------------------
     def add_motion(self, m: MotionShare) -> None:
-        """One vehicle's odometry (body velocity, yaw rate)."""
+        """One vehicle's odometry (heading-frame velocity, yaw rate)."""
+        self._accept_motion(m, None)
+
+    def _accept_motion(self, m: MotionShare, std: tuple[float, float] | None) -> None:
         if not _finite(m.stamp_s, m.yaw_rate_rad_s, *m.v_body) or len(m.v_body) != 3:
             self.count("nonfinite_odometry")
             return
@@ -336,6 +367,112 @@ class EkfLoop:
             return
         self.latest[m.sender] = m
         self.heard_s[m.sender] = max(self.heard_s.get(m.sender, m.stamp_s), m.stamp_s)
+        if std is None:
+            self.motion_std.pop(m.sender, None)
+        else:
+            self.motion_std[m.sender] = std
+
+    # --- tilted vehicles: un-levelled samples plus the autopilot's attitude ------------------
+    def _buffer(self, sender: int) -> AttitudeBuffer:
+        if sender not in self.attitudes:
+            self.attitudes[sender] = AttitudeBuffer(max_gap_s=self.cfg.attitude_max_gap_s)
+        return self.attitudes[sender]
+
+    def add_attitude(
+        self, sender: int, stamp_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float
+    ) -> None:
+        """The autopilot's attitude (MAVLink ATTITUDE, ZYX, rad) at ``stamp_s``."""
+        try:
+            self._buffer(sender).add(
+                stamp_s, se3_inputs.rotation_from_euler(roll_rad, pitch_rad, yaw_rad)
+            )
+        except (BadAttitude, TypeError) as exc:
+            self.count(getattr(exc, "word", "nonfinite_attitude"))
+
+    def add_attitude_quaternion(self, sender: int, stamp_s: float, q_wxyz: Any) -> None:
+        """The autopilot's attitude (MAVLink ATTITUDE_QUATERNION ``(w, x, y, z)``)."""
+        try:
+            self._buffer(sender).add(stamp_s, se3_inputs.rotation_from_quaternion(q_wxyz))
+        except (BadAttitude, TypeError, ValueError) as exc:
+            self.count(getattr(exc, "word", "nonfinite_attitude"))
+
+    def _attitude_at(self, sender: int, stamp_s: float) -> tuple[float, float, float] | None:
+        """``(roll, pitch, yaw)`` of ``sender`` at ``stamp_s``, or ``None`` (counted)."""
+        buf = self.attitudes.get(sender)
+        rot = None if buf is None or not _finite(stamp_s) else buf.at(stamp_s)
+        if rot is None:
+            self.count("no_attitude")
+            return None
+        return se3_inputs.euler_from_rotation(rot)
+
+    def add_body_frame(
+        self,
+        sender: int,
+        stamp_s: float,
+        bearings: Any,
+        rot_body_cam: Any = None,
+    ) -> bool:
+        """One camera frame of a tilted vehicle: ``bearings`` ``[(target, beta (3,)), ...]`` in
+        its tilted body frame (or, with ``rot_body_cam``, its camera frame), levelled with the
+        attitude at ``stamp_s`` and processed as :meth:`add_frame`; ``True`` if it updated."""
+        att = self._attitude_at(sender, stamp_s)
+        if att is None:
+            return False
+        roll, pitch, yaw = att
+        entries, good = [], []
+        for target, b in bearings:
+            bv = np.asarray(b, dtype=float)
+            if bv.shape != (3,) or not np.all(np.isfinite(bv)):
+                self.count("bad_bearing")
+                continue
+            if rot_body_cam is not None:
+                bv = np.asarray(rot_body_cam, dtype=float) @ bv
+            good.append(bv)
+            bl = se3_inputs.level(bv, roll, pitch)
+            entries.append(TargetBearing(int(target), (float(bl[0]), float(bl[1]), float(bl[2]))))
+        sigma = None
+        if good and self.cfg.attitude_sigma_rad > 0.0:
+            sigma = se3_inputs.levelled_bearing_sigma_rad(
+                np.array(good), roll, pitch, self.cfg.bearing_sigma_rad, self.cfg.attitude_sigma_rad
+            )
+        frame = BearingShare(sender=sender, stamp_s=stamp_s, yaw_rad=yaw, bearings=entries)
+        return self.add_frame(frame, sigma_rad=sigma)
+
+    def add_body_motion(
+        self, sender: int, stamp_s: float, v_body_m_s: Any, w_body_rad_s: Any
+    ) -> None:
+        """One tilted vehicle's odometry: velocity in its tilted body frame (m/s) and gyro
+        ``(p, q, r)`` (rad/s), levelled with the attitude at ``stamp_s`` (module doc)."""
+        try:
+            v = np.asarray(v_body_m_s, dtype=float)
+            w = np.asarray(w_body_rad_s, dtype=float)
+        except (TypeError, ValueError):
+            v = w = np.full(1, np.nan)
+        if v.shape != (3,) or w.shape != (3,) or not _finite(stamp_s, *v, *w):
+            self.count("nonfinite_odometry")
+            return
+        att = self._attitude_at(sender, stamp_s)
+        if att is None:
+            return
+        roll, pitch, yaw = att
+        v_h, rate = se3_inputs.heading_motion(v, w, roll, pitch)
+        std = se3_inputs.heading_motion_sigmas(
+            v,
+            w,
+            roll,
+            pitch,
+            self.cfg.velocity_sigma_m_s,
+            self.cfg.rate_sigma_rad_s,
+            self.cfg.attitude_sigma_rad,
+        )
+        m = MotionShare(
+            sender=sender,
+            stamp_s=stamp_s,
+            v_body=(float(v_h[0]), float(v_h[1]), float(v_h[2])),
+            yaw_rate_rad_s=rate,
+            yaw_rad=yaw,
+        )
+        self._accept_motion(m, std)
 
     def add_daemon_estimate(
         self, sender: int, stamp_s: float, p_hat_ned: Any, yaw_hat_rad: float
@@ -352,8 +489,9 @@ class EkfLoop:
             float(stamp_s), np.asarray(p_hat_ned, dtype=float), float(yaw_hat_rad)
         )
 
-    def add_frame(self, frame: BearingShare) -> bool:
-        """One camera frame: predict to its time and update; ``True`` if the filter updated."""
+    def add_frame(self, frame: BearingShare, sigma_rad: float | None = None) -> bool:
+        """One camera frame (levelled bearings): predict to its time and update with angular
+        noise ``sigma_rad`` (default: the configuration's); ``True`` if the filter updated."""
         t = frame.stamp_s
         if not _finite(t):
             self.count("nonfinite_stamp")
@@ -400,9 +538,8 @@ class EkfLoop:
             beta.append(bv)
         if not edges:
             return False
-        self.state, _ = update(
-            self.state, np.array(edges), np.array(beta), self.cfg.bearing_sigma_rad
-        )
+        sigma = self.cfg.bearing_sigma_rad if sigma_rad is None else sigma_rad
+        self.state, _ = update(self.state, np.array(edges), np.array(beta), sigma)
         self.updates += 1
         self._check_disagreement()
         return True
@@ -421,7 +558,9 @@ class EkfLoop:
                 continue
             v[k] = m.v_body
             w[k, 2] = m.yaw_rate_rad_s
-            std[k] = (self.cfg.velocity_sigma_m_s, self.cfg.rate_sigma_rad_s)
+            std[k] = self.motion_std.get(
+                i, (self.cfg.velocity_sigma_m_s, self.cfg.rate_sigma_rad_s)
+            )
         self.state = predict(self.state, v, w, t - self.t_s, std)
 
     # --- cross-check -------------------------------------------------------------------------
