@@ -21,7 +21,7 @@ equilibrium body bearings and relative yaws equal the desired ones: the formatio
 congruent to the desired one. (The flow does not fix the scale; it can only shrink it, since
 ``d/dt sum |p_i - pbar|^2 = -2 k_F phi`` by homogeneity.)
 
-Distances (paper 002 eq. 23): on an edge with a desired distance ``d*_ij`` the cost adds
+Distances (paper 002 eq. 23; docs/equations.md, "Formation control and vision"): on an edge with a desired distance ``d*_ij`` the cost adds
 ``f_D(d_ij c_ij - d*_ij)``, ``c_ij = t_ij . t*_ij``, whose gradient is
 ``grad_{p_i} = -f_D'(d c - d*) t*_ij = -grad_{p_j}`` (:mod:`onboard.distributed.formation`). In
 body frames (:func:`formation_distance_velocity`) the flow adds

@@ -1,4 +1,5 @@
-"""A driven leader (paper 002, "leader" of the formation experiments; docs/distributed.md).
+"""A driven leader (paper 002, "leader" of the formation experiments, docs/papers.md; the law in
+docs/equations.md, "Formation control and vision"; docs/distributed.md).
 
 Paper 002's leader is an agent whose state is driven from outside while the others keep
 descending the formation cost, so they follow it through their edges
