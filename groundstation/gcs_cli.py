@@ -6,7 +6,10 @@
 * ``view`` — the team's 3D scene live to Foxglove over its WebSocket protocol;
 
 
-* ``formation FILE.toml [--leader ID]`` — a new desired formation to the flying agents;
+* ``formation FILE.toml [--leader ID] [--distances] [--ramp S]`` — a new desired formation to the
+  flying agents (``--distances``: its size too, a scale change);
+* ``leader ID --velocity VX,VY,VZ [--duration S] | --waypoints FILE`` — drive the formation's
+  leader (the others follow its bearings);
 * ``record OUT.mcap``, ``replay IN.mcap [--speed K]``, ``plot IN.mcap --out DIR``;
 * ``estimate [--duration S] [--json]`` — paper 001's centralized EKF live over Zenoh beside the
   daemons' estimates (``--replay IN.mcap``: on a recording).
@@ -519,7 +522,20 @@ def view(
 def formation(
     file: Annotated[Path, typer.Argument(help="Formation file (README, 'Formation files').")],
     leader: Annotated[
-        int | None, typer.Option("--leader", help="Vehicle that holds its position.")
+        int | None,
+        typer.Option("--leader", help="Vehicle that holds its position (or flies `gcs leader`)."),
+    ] = None,
+    distances: Annotated[
+        bool,
+        typer.Option(
+            "--distances",
+            help="Hold the file's distances too (paper 002 eq. 23): a scale change. Default: "
+            "bearings only, the team keeps its size.",
+        ),
+    ] = False,
+    ramp: Annotated[
+        float | None,
+        typer.Option("--ramp", help="Seconds over which the agents switch (default: theirs, 3)."),
     ] = None,
     formation_id: Annotated[
         int | None, typer.Option("--id", help="Formation id (default: from the clock).")
@@ -536,9 +552,12 @@ def formation(
 ) -> None:
     """Send a new desired formation to the flying agents (Zenoh); each status acknowledges it."""
     from groundstation.gcs import commands as cmds
+    from messages.command import RAMP_MAX_S
     from messages.formation import FormationError, load_formation
 
     _check_fleet(fleet)
+    if ramp is not None and not (math.isfinite(ramp) and 0.0 <= ramp <= RAMP_MAX_S):
+        raise _fail(f"--ramp must be a number of seconds in [0, {RAMP_MAX_S:g}], got {ramp}")
     try:
         f = load_formation(file)
     except FormationError as exc:
@@ -557,19 +576,124 @@ def formation(
         zen = _zenoh_listener(stack, session, fleet)
         if zen is None:
             raise _fail("formation goes over Zenoh: --zenoh none is not possible")
-        results = cmds.run_formation(session, zen, fleet, f, ids, timeout, fid, leader)
+        results = cmds.run_formation(
+            session, zen, fleet, f, ids, timeout, fid, leader, distances, ramp
+        )
     failed = [i for i, o in results.items() if not o.ok]
-    sent = {"formation": f.name, "id": fid, "leader": leader, "vehicles": ids}
+    sent = {"formation": f.name, "id": fid, "leader": leader, "vehicles": ids,
+            "distances": distances, "ramp_s": ramp}  # fmt: skip
     if json:
         rows = [{"id": i, "ok": o.ok, "details": o.details} for i, o in sorted(results.items())]
         typer.echo(jsonlib.dumps({**sent, "results": rows}))
     else:
         lead = f", leader {leader}" if leader is not None else ""
+        lead += ", with its distances" if distances else ""
         typer.echo(f"sent formation {f.name!r} id {fid}{lead} to vehicles {ids}")
         for i, o in sorted(results.items()):
             typer.echo(f"vehicle {i}: {'OK  ' if o.ok else 'FAIL'}  " + "; ".join(o.details))
         typer.echo(f"formation: {len(results) - len(failed)}/{len(results)} vehicles OK")
     if failed:
+        raise typer.Exit(EXIT_FAILED)
+
+
+def _vector3(text: str, what: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        raise _fail(f"{what} must be three finite numbers VX,VY,VZ, got {text!r}")
+    return v  # type: ignore[return-value]
+
+
+@gcs_app.command("leader")
+def leader(
+    vehicle: Annotated[
+        int, typer.Argument(help="The formation's leader (gcs formation --leader).")
+    ],
+    velocity: Annotated[
+        str | None,
+        typer.Option("--velocity", help="VX,VY,VZ m/s, NED in the leader's odometry frame."),
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Seconds of --velocity, then it holds.")
+    ] = None,
+    waypoints: Annotated[
+        Path | None,
+        typer.Option("--waypoints", help="Waypoint file (docs/gcs.md): NED in its odometry frame."),
+    ] = None,
+    speed: Annotated[
+        float | None, typer.Option("--speed", help="Waypoint speed bound, m/s (default 0.5).")
+    ] = None,
+    drive_id: Annotated[
+        int | None, typer.Option("--id", help="Drive id (default: from the clock).")
+    ] = None,
+    yes: Annotated[bool, typer.Option("--yes", "-y", help="Do not ask for confirmation.")] = False,
+    fleet: FleetOpt = "alpha",
+    zenoh: ZenohOpt = None,
+    zenoh_listen: ZenohListenOpt = None,
+    timeout: Annotated[
+        float, typer.Option("--timeout", help="Seconds to wait for its status to show it.")
+    ] = 5.0,
+    json: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    keys: KeysOpt = None,
+) -> None:
+    """Drive the formation's leader with a velocity or waypoints (Zenoh); the others follow."""
+    import msgspec
+
+    from groundstation.gcs import commands as cmds
+    from messages.command import LeaderDrive
+
+    _check_fleet(fleet)
+    if (velocity is None) == (waypoints is None):
+        raise _fail("give exactly one of --velocity VX,VY,VZ and --waypoints FILE")
+    if duration is not None and velocity is None:
+        raise _fail("--duration goes with --velocity")
+    if speed is not None and waypoints is None:
+        raise _fail("--speed goes with --waypoints")
+    fields: dict[str, Any] = {"sender": cmds.GCS_SENDER_ID, "target": vehicle}
+    if velocity is not None:
+        fields["velocity_ned"] = _vector3(velocity, "--velocity")
+        if duration is not None:
+            fields["duration_s"] = duration
+    else:
+        assert waypoints is not None
+        try:
+            points, file_speed = cmds.load_waypoints(waypoints)
+        except cmds.WaypointError as exc:
+            raise _fail(str(exc)) from None
+        fields["waypoints_ned"] = points
+        if speed is not None or file_speed is not None:
+            fields["speed_m_s"] = speed if speed is not None else file_speed
+    did = drive_id if drive_id is not None else time.time_ns() // 1_000_000 % (1 << 40)
+    fields["drive_id"] = did
+    try:  # the payload's own bounds (messages/command.py), as the agent will check them
+        drive = msgspec.convert(fields, LeaderDrive)
+    except msgspec.ValidationError as exc:
+        raise _fail(f"not a leader drive: {exc}") from None
+    what = (
+        f"velocity {drive.velocity_ned} m/s"
+        + (f" for {drive.duration_s:g} s" if drive.duration_s is not None else "")
+        if drive.velocity_ned is not None
+        else f"{len(drive.waypoints_ned)} waypoints at {drive.speed_m_s:g} m/s"
+    )
+    if not yes and not typer.confirm(f"leader {vehicle}: {what} (drive {did})?"):
+        typer.echo("not confirmed: nothing sent")
+        raise typer.Exit(EXIT_FAILED)
+    with ExitStack() as stack:
+        session = _open_zenoh(stack, zenoh, zenoh_listen, keys, fleet)
+        zen = _zenoh_listener(stack, session, fleet)
+        if zen is None:
+            raise _fail("leader goes over Zenoh: --zenoh none is not possible")
+        result = cmds.run_leader(session, zen, fleet, drive, timeout)
+    if json:
+        typer.echo(jsonlib.dumps({"vehicle": vehicle, "id": did, "drive": what, "ok": result.ok,
+                                  "details": result.details}))  # fmt: skip
+    else:
+        typer.echo(f"sent leader drive {did} to vehicle {vehicle}: {what}")
+        typer.echo(f"vehicle {vehicle}: {'OK  ' if result.ok else 'FAIL'}  "
+                   + "; ".join(result.details))  # fmt: skip
+    if not result.ok:
         raise typer.Exit(EXIT_FAILED)
 
 

@@ -11,7 +11,7 @@ from typing import Annotated
 import msgspec
 
 from messages.codec import Payload
-from messages.limits import AgentId, Seq
+from messages.limits import AgentId, Name, Seq
 from messages.vocabulary import Phase
 
 Vec3 = tuple[float, float, float]
@@ -61,6 +61,9 @@ class OwnMeasurements(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """When the autopilot measured ``yaw_rad``, ``v_body`` and ``yaw_rate_rad_s`` (same clock as
     ``t_s``; ``None``: at ``t_s``). An autopilot streams them at 20-50 Hz and they reach the core
     tens of milliseconds later; the SfM observers pair them with camera frames by time."""
+    position_ned: Vec3 | None = None
+    """Odometry position from the autopilot's local origin (its estimator's frame, never
+    shared): only a leader flying waypoints (:class:`messages.command.LeaderDrive`) uses it."""
 
 
 class Setpoint(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -95,6 +98,15 @@ class AgentStatus(Payload, tag="agent.status"):
     range_terms: Annotated[int, msgspec.Meta(ge=0)] = 0
     """Measured-range terms (paper 002 eq. 22: the camera's disc ranges) paper 002's
     localization has used so far, one per out-edge and step (0 without that layer)."""
+    formation_ramp: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 1.0
+    """How far the switch to the newest desired formation has come (0 at the change, 1 done;
+    :meth:`onboard.core.motion.Formation.adopt`)."""
+    distance_terms: Annotated[int, msgspec.Meta(ge=0)] = 0
+    """Edges whose distance term (paper 002 eq. 23, ``f_D``) the last formation command had (0:
+    bearings only: the formation has no distances, or no distance estimate yet)."""
+    leader_drive: Name = ""
+    """What this leader flies (``velocity``, ``velocity done``, ``waypoint 2/5``, ``waypoints
+    done``); empty when it is no driven leader."""
 
 
 class VehicleStatus(Payload, tag="vehicle.status"):
@@ -124,3 +136,10 @@ class VehicleStatus(Payload, tag="vehicle.status"):
     the last :class:`messages.command.FormationChange` it adopted (the ground station's ack)."""
     formation_leader: AgentId | None = None
     """The vehicle that holds its position in that formation (``None``: no leader)."""
+    formation_name: Name = ""
+    """That formation's name (the fleet file's formation: empty)."""
+    formation_distances: bool = False
+    """Whether that formation holds its distances too (paper 002 eq. 23; a scale change)."""
+    leader_drive_id: Seq = 0
+    """The ``drive_id`` of the last :class:`messages.command.LeaderDrive` this leader took (0:
+    none; the ground station's ack)."""

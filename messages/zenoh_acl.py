@@ -6,7 +6,8 @@ subjects are the certificate common names the fleet CA issued (``bearingflock ke
 
 * ``<fleet>-vehicle-<j>`` may put (and declare liveliness tokens) only under
   ``bf/<fleet>/<j>/**``: its status, peer payloads, command acks, its own camera images;
-* ``<fleet>-gcs`` may put fleet commands (``bf/<fleet>/*/command``) and lockstep steps;
+* ``<fleet>-gcs`` may put fleet commands (``bf/<fleet>/*/command``), formation changes and
+  leader drives (``.../command/formation``, ``.../command/leader``) and lockstep steps;
 * ``<fleet>-sim`` (rehearsals only: do not give a real fleet ``sim.crt``) may put the
   simulator's clock and each vehicle's virtual camera and truth;
 * every subject may subscribe, query liveliness and receive what we publish;
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from messages.command import COMMAND_TOPIC
+from messages.command import COMMAND_TOPIC, FORMATION_TOPIC, LEADER_TOPIC
 from messages.image import IMAGE_TOPIC
 from messages.keys import PREFIX
 from messages.sim import CAMERA_TOPIC, TRUTH_TOPIC
@@ -43,7 +44,8 @@ def fleet_access_control(
         {"id": "deliver", "messages": [*WRITE, "reply"], "flows": ["egress"],
          "permission": "allow", "key_exprs": [f"{root}/**"]},
         {"id": "gcs_put", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
-         "key_exprs": [f"{root}/*/{COMMAND_TOPIC}", f"{root}/sim/step"]},
+         "key_exprs": [f"{root}/*/{COMMAND_TOPIC}", f"{root}/*/{FORMATION_TOPIC}",
+                       f"{root}/*/{LEADER_TOPIC}", f"{root}/sim/step"]},
         {"id": "sim_put", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
          "key_exprs": [f"{root}/sim/**", f"{root}/*/{CAMERA_TOPIC}", f"{root}/*/{TRUTH_TOPIC}",
                        f"{root}/*/{IMAGE_TOPIC}"]},

@@ -150,6 +150,27 @@ IN_PROCESS = [
         "--zenoh-listen",
     ),
     Case("gcs replay truncated", _truncated, "nothing to read", code=1),
+    Case(
+        "gcs leader --velocity 1,2",
+        lambda t: ["gcs", "leader", "0", "--velocity", "1,2", "--yes"],
+        "three finite numbers",
+    ),
+    Case(
+        "gcs leader --velocity 1e3,0,0",
+        lambda t: ["gcs", "leader", "0", "--velocity", "1e3,0,0", "--yes"],
+        "not a leader drive",
+    ),
+    Case("gcs leader without a drive", lambda t: ["gcs", "leader", "0", "--yes"], "exactly one"),
+    Case(
+        "gcs leader --waypoints missing",
+        lambda t: ["gcs", "leader", "0", "--waypoints", str(t / "no.toml"), "--yes"],
+        "no.toml",
+    ),
+    Case(
+        "gcs formation --ramp -1",
+        lambda t: ["gcs", "formation", str(t / "f.toml"), "--ramp", "-1", "--yes"],
+        "--ramp",
+    ),
 ]
 
 

@@ -13,6 +13,9 @@
 * ``formation FILE`` sends a new desired formation (:class:`~messages.command.FormationChange`
   on ``bf/<fleet>/<id>/command/formation``), repeated every :data:`RETRY_PERIOD_S` until each
   agent's status shows its ``formation_id`` (:func:`run_formation`).
+* ``leader ID`` drives the formation's leader (:class:`~messages.command.LeaderDrive` on
+  ``bf/<fleet>/<id>/command/leader``: a velocity or waypoints), repeated the same way until its
+  status shows the ``drive_id`` (:func:`run_leader`); waypoint files: :func:`load_waypoints`.
 
 Every vehicle gets a :class:`Outcome`; the caller prints them and fails if any is not ``ok``.
 """
@@ -23,7 +26,10 @@ import math
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
+
+import msgspec
 
 from groundstation.gcs.mavlink_listener import MavlinkListener
 from groundstation.gcs.mavlink_state import Ack, MavlinkState
@@ -33,9 +39,13 @@ from messages.codec import encode
 from messages.command import (
     COMMAND_TOPIC,
     FORMATION_TOPIC,
+    LEADER_TOPIC,
     FleetCommand,
     FormationChange,
     FormationSlot,
+    LeaderDrive,
+    Waypoints,
+    drive_problem,
 )
 from messages.formation import Formation
 from messages.keys import key
@@ -322,9 +332,12 @@ def run_formation(
     timeout_s: float,
     formation_id: int,
     leader: int | None = None,
+    distances: bool = False,
+    ramp_s: float | None = None,
 ) -> dict[int, Outcome]:
     """Send ``formation`` to every agent in ``ids`` (one :class:`FormationChange` each, again
-    every :data:`RETRY_PERIOD_S`) until each status reports ``formation_id`` or ``timeout_s``."""
+    every :data:`RETRY_PERIOD_S`) until each status reports ``formation_id`` or ``timeout_s``;
+    ``distances``: hold its distances too (paper 002 eq. 23), ``ramp_s``: the switch time."""
     slots = formation_slots(formation)
     name = formation.name[:64]
 
@@ -343,6 +356,7 @@ def run_formation(
             change = FormationChange(
                 sender=GCS_SENDER_ID, seq=seq, stamp_s=stamp, target=i,
                 formation_id=formation_id, agents=slots, name=name, leader=leader,
+                distances=distances, ramp_s=ramp_s,
             )  # fmt: skip
             session.put(key(fleet, i, FORMATION_TOPIC), encode(change))
             seq += 1
@@ -357,7 +371,8 @@ def run_formation(
             if status is not None and status.formation_id == formation_id:
                 out[i].ok = True
                 held = " (leader: holds)" if status.formation_leader == i else ""
-                out[i].details.append(f"agent: flies formation {formation_id}{held}")
+                scale = " with its distances" if status.formation_distances else ""
+                out[i].details.append(f"agent: flies formation {formation_id}{scale}{held}")
             elif status is None:
                 out[i].details.append(f"agent: no status within {timeout_s:g} s")
             else:
@@ -366,4 +381,96 @@ def run_formation(
                     f"agent: still flies formation {status.formation_id} after {timeout_s:g} s"
                     + (f" (dropped {refused})" if refused else "")
                 )
+    return out
+
+
+class WaypointError(ValueError):
+    """A waypoint file that cannot be flown; the message names the problem and the place."""
+
+
+class _Waypoint(msgspec.Struct, forbid_unknown_fields=True):
+    ned: tuple[float, float, float]
+
+
+class _WaypointFile(msgspec.Struct, forbid_unknown_fields=True):
+    waypoint: list[_Waypoint]
+    speed_m_s: float | None = None
+
+
+def load_waypoints(path: str | Path) -> tuple[list[tuple[float, float, float]], float | None]:
+    """A waypoint file (TOML; docs/gcs.md)::
+
+        speed_m_s = 0.5              # optional: the bound of the leg speeds
+        [[waypoint]]
+        ned = [2.0, 0.0, -5.0]       # m, NED in the leader's odometry frame
+
+    Returns the waypoints and the speed (``None``: not given); :class:`WaypointError` if the file
+    does not load or a value is beyond the payload's bounds (:class:`LeaderDrive`)."""
+    path = Path(path)
+    try:
+        spec = msgspec.toml.decode(path.read_bytes(), type=_WaypointFile)
+    except OSError as exc:
+        raise WaypointError(f"{path}: cannot read file ({exc.strerror})") from None
+    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        raise WaypointError(f"{path}: {exc}") from None
+    points = [w.ned for w in spec.waypoint]
+    if not points:
+        raise WaypointError(f"{path}: waypoint: at least one [[waypoint]] is needed")
+    try:
+        msgspec.convert(points, Waypoints)
+        speed = spec.speed_m_s
+        if speed is not None:
+            msgspec.convert({"sender": 0, "target": 0, "drive_id": 1, "speed_m_s": speed},
+                            LeaderDrive)  # fmt: skip
+    except msgspec.ValidationError as exc:
+        raise WaypointError(f"{path}: {exc}") from None
+    if not all(math.isfinite(x) for p in points for x in p):
+        raise WaypointError(f"{path}: waypoint: every coordinate must be finite")
+    return points, spec.speed_m_s
+
+
+def run_leader(
+    session: Any, zenoh: ZenohListener, fleet: str, drive: LeaderDrive, timeout_s: float
+) -> Outcome:
+    """Send ``drive`` to its leader (again every :data:`RETRY_PERIOD_S`) until the leader's status
+    reports its ``drive_id`` or ``timeout_s``; a vehicle that leads no formation says so."""
+    problem = drive_problem(drive)
+    if problem:
+        raise ValueError(problem)
+    i = drive.target
+
+    def taken(state: ZenohState) -> bool:
+        a = state.agents.get(i)
+        return a is not None and a.status is not None and a.status.leader_drive_id == drive.drive_id
+
+    deadline = time.monotonic() + timeout_s
+    seq = 0
+    while True:
+        sent = msgspec.structs.replace(drive, seq=seq, stamp_s=time.time())
+        session.put(key(fleet, i, LEADER_TOPIC), encode(sent))
+        seq += 1
+        left = deadline - time.monotonic()
+        if left <= 0 or zenoh.wait_for(taken, min(RETRY_PERIOD_S, left)):
+            break
+    out = Outcome(i)
+    with zenoh.lock:
+        a = zenoh.state.agents.get(i)
+        status = None if a is None else a.status
+    if status is not None and status.leader_drive_id == drive.drive_id:
+        out.ok = True
+        out.details.append(f"agent: leader of formation {status.formation_id} flies drive "
+                           f"{drive.drive_id}")  # fmt: skip
+    elif status is None:
+        out.details.append(f"agent: no status within {timeout_s:g} s")
+    elif status.formation_leader != i:
+        out.details.append(
+            f"agent: does not lead formation {status.formation_id} (leader "
+            f"{status.formation_leader}): send `gcs formation FILE --leader {i}` first"
+        )
+    else:
+        refused = {k: n for k, n in status.dropped.items() if k.startswith("command_")}
+        out.details.append(
+            f"agent: still flies drive {status.leader_drive_id} after {timeout_s:g} s"
+            + (f" (dropped {refused})" if refused else "")
+        )
     return out

@@ -23,9 +23,11 @@ from messages.command import (
     ACK_TOPIC,
     COMMAND_TOPIC,
     FORMATION_TOPIC,
+    LEADER_TOPIC,
     CommandAck,
     FleetCommand,
     FormationChange,
+    LeaderDrive,
 )
 from messages.keys import ALIVE_TOPIC, PEER_TOPIC, STATUS_TOPIC, fleet_keys, is_sim_key, parse_key
 from messages.peer import PeerPayload
@@ -37,6 +39,7 @@ TOPIC_TYPES: dict[str, Any] = {
     COMMAND_TOPIC: FleetCommand,
     ACK_TOPIC: CommandAck,
     FORMATION_TOPIC: FormationChange,
+    LEADER_TOPIC: LeaderDrive,
     CAMERA_TOPIC: CameraBearings,
     TRUTH_TOPIC: Truth,
 }
@@ -87,7 +90,9 @@ def classify(fleet: str, key: str, data: bytes) -> Decoded:
         raise MessageError(DropReason.FOREIGN, f"unknown topic {topic!r} in {key}")
     payload = decode(data, kind)
     owner = (
-        payload.target if isinstance(payload, FleetCommand | FormationChange) else payload.sender
+        payload.target
+        if isinstance(payload, FleetCommand | FormationChange | LeaderDrive)
+        else payload.sender
     )
     if owner != agent_id:
         raise MessageError(

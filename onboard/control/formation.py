@@ -20,6 +20,19 @@ localization filter). Yaws are aligned by the gradient flow of ``sum (1 - cos e_
 equilibrium body bearings and relative yaws equal the desired ones: the formation is bearing
 congruent to the desired one. (The flow does not fix the scale; it can only shrink it, since
 ``d/dt sum |p_i - pbar|^2 = -2 k_F phi`` by homogeneity.)
+
+Distances (paper 002 eq. 23; docs/equations.md, "Formation control and vision"): on an edge with a desired distance ``d*_ij`` the cost adds
+``f_D(d_ij c_ij - d*_ij)``, ``c_ij = t_ij . t*_ij``, whose gradient is
+``grad_{p_i} = -f_D'(d c - d*) t*_ij = -grad_{p_j}`` (:mod:`onboard.distributed.formation`). In
+body frames (:func:`formation_distance_velocity`) the flow adds
+
+    u_i^D = k_F [ sum_out f_D'(d_ij c_ij - d*_ij) beta*_ij - sum_in f_D'(d_ji c_ji - d*_ji) iR_j beta*_ji ]
+
+with ``d`` the agent's distance *estimate* of the edge; ``f_D`` is the shipped pseudo-Huber
+(:class:`onboard.distributed.reshaping.ReshapeD`), so each edge adds at most ``k_F w delta``.
+A desired formation changes in flight through a ramp (:func:`ramp_fraction`,
+:func:`slerp_bearing`): the desired bearings turn along great circles and the desired
+distances move linearly from the old to the new ones over the ramp time.
 """
 
 from __future__ import annotations
@@ -30,6 +43,7 @@ from collections.abc import Iterable
 import numpy as np
 from numpy.typing import ArrayLike
 
+from onboard.distributed.reshaping import ReshapeD
 from onboard.geometry import FloatArray, bearings_world, rot_z
 
 Vec3 = tuple[float, float, float]
@@ -76,6 +90,62 @@ def formation_velocity(
     for psi_ij, beta, des in in_edges:
         a = formation_in_term(a, psi_ij, beta, des)
     return (k_f * a[0], k_f * a[1], k_f * a[2])
+
+
+def formation_distance_velocity(
+    out_edges: Iterable[tuple[Vec3, Vec3, float, float]],
+    in_edges: Iterable[tuple[float, Vec3, Vec3, float, float]],
+    k_f: float,
+    f_d: ReshapeD,
+) -> Vec3:
+    """Body-frame ``u_i^D``: the distance terms of paper 002 eq. 23 (module docstring).
+
+    ``out_edges``: ``(beta_ij, beta*_ij, d_ij, d*_ij)``; ``in_edges``:
+    ``(psi_ij, beta_ji, beta*_ji, d_ji, d*_ji)`` with ``psi_ij = psihat_j - psihat_i``; ``d``
+    the estimated distance (m), ``d*`` the desired one."""
+    a0 = a1 = a2 = 0.0
+    for beta, des, d, d_des in out_edges:
+        c = beta[0] * des[0] + beta[1] * des[1] + beta[2] * des[2]
+        g = float(f_d.deriv(d * c - d_des))
+        a0, a1, a2 = a0 + g * des[0], a1 + g * des[1], a2 + g * des[2]
+    for psi_ij, beta, des, d, d_des in in_edges:
+        c = beta[0] * des[0] + beta[1] * des[1] + beta[2] * des[2]
+        g = float(f_d.deriv(d * c - d_des))
+        cs, sn = math.cos(psi_ij), math.sin(psi_ij)
+        a0 -= g * (cs * des[0] - sn * des[1])
+        a1 -= g * (sn * des[0] + cs * des[1])
+        a2 -= g * des[2]
+    return (k_f * a0, k_f * a1, k_f * a2)
+
+
+def ramp_fraction(elapsed_s: float, ramp_s: float) -> float:
+    """How far a formation switch of ``ramp_s`` seconds has come after ``elapsed_s``: the
+    smoothstep ``3 x^2 - 2 x^3`` of ``x = elapsed / ramp`` clipped to ``[0, 1]`` (``1`` for a
+    ramp of 0 s). Its slope is 0 at both ends, so the desired formation, and with it the
+    formation law's velocity, starts and ends its change without a kink."""
+    if ramp_s <= 0.0 or elapsed_s >= ramp_s:
+        return 1.0
+    if elapsed_s <= 0.0:
+        return 0.0
+    x = elapsed_s / ramp_s
+    return x * x * (3.0 - 2.0 * x)
+
+
+def slerp_bearing(a: Vec3, b: Vec3, s: float) -> Vec3:
+    """The unit vector a fraction ``s`` of the way from unit ``a`` to unit ``b`` along their
+    great circle (``a`` at 0, ``b`` at 1). Opposite bearings have no unique great circle: the
+    result jumps from ``a`` to ``b`` at ``s = 1/2``."""
+    c = max(-1.0, min(1.0, a[0] * b[0] + a[1] * b[1] + a[2] * b[2]))
+    theta = math.acos(c)
+    if theta < 1e-9:
+        return b
+    sin_t = math.sin(theta)
+    if sin_t < 1e-6:  # (anti)parallel
+        return a if s < 0.5 else b
+    wa, wb = math.sin((1.0 - s) * theta) / sin_t, math.sin(s * theta) / sin_t
+    v = (wa * a[0] + wb * b[0], wa * a[1] + wb * b[1], wa * a[2] + wb * b[2])
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return (v[0] / n, v[1] / n, v[2] / n)
 
 
 def yaw_alignment_term(yaw_i_rad: float, yaw_j_rad: float, yaw_des_ij_rad: float) -> float:

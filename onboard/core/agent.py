@@ -37,6 +37,7 @@ from messages.peer import (
 )
 from messages.rigidity import AngleLocalizationShare, RigidityEigenShare
 from messages.vocabulary import DropReason
+from onboard.control.leader import LeaderPlan
 from onboard.core.bearings import finite
 from onboard.core.config import AgentConfig
 from onboard.core.layer import Command, Own, Vec3
@@ -219,14 +220,30 @@ class AgentCore:
 
     # ------------------------------------------------------------ formation changes
     def adopt_formation(
-        self, p_ned: FloatArray, yaw_rad: FloatArray, leader: int | None = None
+        self,
+        p_ned: FloatArray,
+        yaw_rad: FloatArray,
+        leader: int | None = None,
+        distances: bool = False,
+        ramp_s: float | None = None,
     ) -> bool:
         """Fly a new desired formation (agent ``k`` at ``p_ned[k]`` with yaw ``yaw_rad[k]``;
-        ``leader`` holds its position): ``False`` when this mode flies no formation."""
+        ``leader`` holds its position or flies :meth:`drive_leader`'s drive; ``distances``: its
+        distances too, paper 002 eq. 23; reached over ``ramp_s``,
+        :meth:`onboard.core.motion.Formation.adopt`): ``False`` when this mode flies no
+        formation."""
         if not isinstance(self.controller, Formation):
             return False
-        self.controller.adopt(p_ned, yaw_rad, leader)
+        self.controller.adopt(p_ned, yaw_rad, leader, distances, ramp_s)
         return True
+
+    def drive_leader(self, plan: LeaderPlan | None) -> bool:
+        """Fly ``plan`` (an external velocity or waypoints, :mod:`onboard.control.leader`;
+        ``None``: hold) as the formation's leader: ``False`` unless this agent is the leader of
+        the formation it flies."""
+        if not isinstance(self.controller, Formation):
+            return False
+        return self.controller.drive_leader(plan)
 
     # -------------------------------------------------------------- status
     def status(self) -> AgentStatus:

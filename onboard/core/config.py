@@ -15,6 +15,7 @@ their group, :data:`FIELD_GROUP` says which group holds a name.
 
 from __future__ import annotations
 
+import math
 import typing
 from typing import Any, Literal
 
@@ -177,6 +178,25 @@ class FormationGains(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Desired yaws (only their differences matter)."""
     k_formation: float = 0.5
     k_yaw: float = 1.0
+    change_ramp_s: float = 3.0
+    """A new desired formation (:meth:`onboard.core.motion.Formation.adopt`) replaces the flown
+    one over this time (smoothstep, :func:`onboard.control.formation.ramp_fraction`); a
+    :class:`messages.command.FormationChange` may ask for another."""
+    distance_weight: float = 0.25
+    """``w`` of the formation's ``f_D`` (paper 002 eq. 23; pseudo-Huber
+    :class:`onboard.distributed.reshaping.ReshapeD`), 1/m: a desired-distance error ``x`` adds
+    ``k_formation w x`` m/s per edge while ``|x|`` is well below ``distance_delta_m``."""
+    distance_delta_m: float = 2.0
+    """``delta`` of that pseudo-Huber: each edge adds at most ``k_formation w delta`` m/s
+    (0.25 m/s by default), so a large scale change is flown at a bounded speed."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.change_ramp_s) and self.change_ramp_s >= 0.0):
+            raise ValueError(f"change_ramp_s must be >= 0, got {self.change_ramp_s}")
+        if not (math.isfinite(self.distance_weight) and self.distance_weight >= 0.0):
+            raise ValueError(f"distance_weight must be >= 0, got {self.distance_weight}")
+        if not (math.isfinite(self.distance_delta_m) and self.distance_delta_m > 0.0):
+            raise ValueError(f"distance_delta_m must be > 0, got {self.distance_delta_m}")
 
 
 class RigidityGains(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

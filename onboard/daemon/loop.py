@@ -32,7 +32,7 @@ import numpy as np
 
 from messages.agent import AgentStatus, OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
-from messages.command import FleetCommand, formation_problem
+from messages.command import FleetCommand, drive_problem, formation_problem
 from messages.fatal import is_permanent
 from messages.limits import (
     ANGLE_MAX_RAD,
@@ -44,6 +44,7 @@ from messages.limits import (
 from messages.vocabulary import Alarm, DropReason, DropScope, Phase, drop_key
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
 from onboard.autopilot.states import HOLD_MODE
+from onboard.control.leader import LeaderPlan
 from onboard.core.agent import AgentCore
 from onboard.core.config import (
     AgentConfig,
@@ -269,6 +270,9 @@ class AgentDaemon:
         self._skewed: frozenset[int] = frozenset()
         self._status_seq = 0
         self._formation: tuple[int, int | None] = (0, None)  # (formation_id, leader) flown
+        self._formation_name = ""
+        self._formation_distances = False
+        self._drive_id = 0  # the leader drive taken (0: none)
         self.metrics = DaemonMetrics()
         self._newest_frame_s = -math.inf
         self._frame_link_s: tuple[float, float | None] = (-math.inf, None)
@@ -381,6 +385,12 @@ class AgentDaemon:
                 if cmd.action == "hold":
                     self.state.set(Phase.HOLDING)
             self._actions.put((cmd.action, cmd))
+        self._handle_formation()
+        self._handle_drive()
+
+    def _handle_formation(self) -> None:
+        """Adopt a new formation change (paper 002's formation changes; counted and dropped if
+        the fleet cannot fly it) and log which formation the agent flies now."""
         change = self.peers.formation()
         if change is None or change.formation_id == self._formation[0]:
             return  # the ground station repeats a change until the status shows it
@@ -390,11 +400,63 @@ class AgentDaemon:
             return
         slots = sorted(change.agents, key=lambda a: a.id)
         p_ned = np.array([a.position_ned for a in slots], dtype=float)
-        if self.core.adopt_formation(p_ned, np.array([a.yaw_rad for a in slots]), change.leader):
+        yaw = np.array([a.yaw_rad for a in slots])
+        if self.core.adopt_formation(p_ned, yaw, change.leader, change.distances, change.ramp_s):
             self._formation = (change.formation_id, change.leader)
+            self._formation_name = change.name
+            self._formation_distances = change.distances
+            if change.leader != self.id:
+                self._drive_id = 0  # a drive is the leader's only
+            ramp = (
+                self.core.config.formation.change_ramp_s if change.ramp_s is None else change.ramp_s
+            )
+            role = (" (the leader)" if change.leader == self.id else
+                    f", leader {change.leader}" if change.leader is not None else "")  # fmt: skip
+            log.info(
+                "flying formation %d %r%s: bearings%s, switch over %.1f s",
+                change.formation_id, change.name, role,
+                " and distances" if change.distances else " only", ramp,
+            )  # fmt: skip
         else:
             self.drops.drop(DropReason.FOREIGN, f"mode {self.core.config.mode}: no formation",
                             DropScope.COMMAND)  # fmt: skip
+
+    def _handle_drive(self) -> None:
+        """Take a new leader drive (paper 002's leader with an external velocity) if this
+        vehicle leads the formation it flies; otherwise count and drop it."""
+        drive = self.peers.leader_drive()
+        if drive is None or drive.drive_id == self._drive_id:
+            return  # repeated until the status shows it
+        problem = drive_problem(drive)
+        if problem:
+            self.drops.drop(DropReason.MALFORMED, problem, DropScope.COMMAND)
+            return
+        plan = LeaderPlan(
+            velocity_ned=drive.velocity_ned,
+            duration_s=drive.duration_s,
+            waypoints_ned=tuple(drive.waypoints_ned),
+            speed_m_s=drive.speed_m_s,
+            tolerance_m=drive.tolerance_m,
+        )
+        stopping = drive.velocity_ned is None and not drive.waypoints_ned
+        if not self.core.drive_leader(None if stopping else plan):
+            self.drops.drop(
+                DropReason.FOREIGN,
+                f"leader drive {drive.drive_id}: agent {self.id} does not lead formation "
+                f"{self._formation[0]} (leader {self._formation[1]})",
+                DropScope.COMMAND,
+            )
+            return
+        self._drive_id = drive.drive_id
+        if drive.velocity_ned is not None:
+            what = f"velocity {drive.velocity_ned} m/s NED" + (
+                f" for {drive.duration_s:g} s" if drive.duration_s is not None else ""
+            )
+        elif drive.waypoints_ned:
+            what = f"{len(drive.waypoints_ned)} waypoints at {drive.speed_m_s:g} m/s"
+        else:
+            what = "hold"
+        log.info("leader drive %d: %s", drive.drive_id, what)
 
     def _update_peers(self, now_s: float) -> None:
         self.presence.update(self.peers.alive_peers(), now_s)
@@ -441,6 +503,7 @@ class AgentDaemon:
         if tel.t_boot_s is not None:
             self.metrics.telemetry_age_s.append(now_s - tel.t_boot_s)
         odo = odometry(tel, now_s, sim=self.fleet.config.clock == "sim")
+        p_ned = (tel.north_m, tel.east_m, -tel.altitude_m)  # a driven leader's waypoints
         return OwnMeasurements(
             t_s=now_s,
             yaw_rad=odo.yaw_rad,
@@ -449,6 +512,7 @@ class AgentDaemon:
             bearings=frame or (),
             ranges=ranges,
             odometry_stamp_s=odo.stamp_s,
+            position_ned=p_ned if all(math.isfinite(x) for x in p_ned) else None,
         )
 
     def _status(self, now_s: float, tel: Telemetry) -> VehicleStatus:
@@ -488,6 +552,9 @@ class AgentDaemon:
             dropped=dropped,
             formation_id=self._formation[0],
             formation_leader=self._formation[1],
+            formation_name=self._formation_name,
+            formation_distances=self._formation_distances,
+            leader_drive_id=self._drive_id,
         )
 
     def run(self) -> None:

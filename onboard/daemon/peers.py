@@ -2,7 +2,8 @@
 
 Keys (``messages.keys``): peer payloads on ``bf/<fleet>/<id>/peer/<kind>``, a liveliness token
 ``bf/<fleet>/<id>/alive``, the status for the ground station on ``bf/<fleet>/<id>/status``,
-commands on ``bf/<fleet>/<id>/command`` (answered on ``.../command/ack``). Zenoh calls back on
+commands on ``bf/<fleet>/<id>/command`` (answered on ``.../command/ack``), formation changes on
+``.../command/formation`` and leader drives on ``.../command/leader``. Zenoh calls back on
 its own threads; the link queues what arrives and the agent loop drains it.
 
 Bad input never reaches the agent core: every sample is decoded and validated
@@ -24,9 +25,11 @@ from messages.command import (
     ACK_TOPIC,
     COMMAND_TOPIC,
     FORMATION_TOPIC,
+    LEADER_TOPIC,
     CommandAck,
     FleetCommand,
     FormationChange,
+    LeaderDrive,
 )
 from messages.keys import PEER_TOPIC, STATUS_TOPIC, alive_key, key, parse_key
 from messages.peer import PeerPayload
@@ -98,6 +101,7 @@ class PeerLink:
         self._inbox: deque[Payload] = deque(maxlen=10_000)
         self._commands: deque[FleetCommand] = deque(maxlen=100)
         self._formation: FormationChange | None = None
+        self._drive: LeaderDrive | None = None
         self._alive: set[int] = set()
         self._handles: list[Any] = []
         self._publishers: dict[str, Any] = {}
@@ -128,6 +132,9 @@ class PeerLink:
             self.session.declare_subscriber(
                 key(fleet, agent_id, FORMATION_TOPIC), self._on_formation
             )
+        )
+        self._handles.append(
+            self.session.declare_subscriber(key(fleet, agent_id, LEADER_TOPIC), self._on_drive)
         )
         self._handles.append(
             self.session.liveliness().declare_subscriber(
@@ -187,6 +194,11 @@ class PeerLink:
             with self._lock:
                 self._formation = change  # only the newest matters
 
+    def _on_drive(self, sample: Any) -> None:
+        if (drive := self._targeted(sample, LeaderDrive, "leader drive")) is not None:
+            with self._lock:
+                self._drive = drive  # only the newest matters
+
     def _on_alive(self, sample: Any) -> None:
         try:
             _, agent_id, _ = parse_key(str(sample.key_expr))
@@ -218,6 +230,12 @@ class PeerLink:
         """The newest formation change received since the last call."""
         with self._lock:
             out, self._formation = self._formation, None
+        return out
+
+    def leader_drive(self) -> LeaderDrive | None:
+        """The newest leader drive received since the last call."""
+        with self._lock:
+            out, self._drive = self._drive, None
         return out
 
     def alive_peers(self) -> set[int]:

@@ -129,6 +129,9 @@ class _Peers:
     def formation(self) -> None:
         return None
 
+    def leader_drive(self) -> None:
+        return None
+
     def alive_peers(self) -> set:
         return set()
 
