@@ -134,14 +134,82 @@ def codec_memory_mb(n: int) -> tuple[float, int]:
     return held / 2**20, len(codec._parsers)
 
 
+def memory_attack(pid: int, port: int, sources: int) -> dict[str, float]:
+    """``sources`` spoofed source addresses, one valid HEARTBEAT each, to ``port`` of the
+    simulator ``pid``: its VmRSS before and 1 s after (MB), and how long sending took."""
+    before = rss_mb(pid)
+    t0 = time.monotonic()
+    spoof_sources(port, sources)
+    sent_s = time.monotonic() - t0
+    time.sleep(1.0)
+    after = rss_mb(pid)
+    return {"sources": sources, "rss_before_mb": before, "rss_after_mb": after, "send_s": sent_s}
+
+
+def cpu_attack(pid: int, port: int, gcs: socket.socket, spoofers: int, seconds: float) -> dict:
+    """The simulator ``pid``'s CPU (fraction of one core) and the HEARTBEAT rate ``gcs`` (the
+    ground-station socket it streams to) receives, ``seconds`` without an attack (the baseline)
+    and then with ``spoofers`` fake ground stations each sending one HEARTBEAT a second to
+    ``port``. The caller's file limit must allow ``spoofers`` more sockets."""
+    drain(gcs)
+    c0 = cpu_s(pid)
+    base_hb = gcs_heartbeats(gcs, seconds)
+    base_cpu = (cpu_s(pid) - c0) / seconds
+    frame = heartbeat()
+    flock = []
+    for k in range(spoofers):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind((f"127.1.{1 + k // 250}.{1 + k % 250}", 0))
+        s.setblocking(False)
+        flock.append(s)
+
+    def beat() -> None:
+        for s in flock:
+            try:
+                s.sendto(frame, ("127.0.0.1", port))
+            except OSError:
+                pass
+            try:
+                while s.recv(65535):
+                    pass
+            except OSError:
+                pass
+
+    try:
+        beat()
+        time.sleep(1.0)
+        drain(gcs)  # what arrived during that second would count as 1 s more of heartbeats
+        c0 = cpu_s(pid)
+        att_hb = gcs_heartbeats(gcs, seconds, tick=beat)
+        att_cpu = (cpu_s(pid) - c0) / seconds
+    finally:
+        for s in flock:
+            s.close()
+    return {"spoofers": spoofers, "seconds": seconds, "base_cpu": base_cpu,
+            "base_heartbeats_s": base_hb, "attacked_cpu": att_cpu, "attacked_heartbeats_s": att_hb}  # fmt: skip
+
+
+def raise_file_limit(sockets: int) -> None:
+    """Room for ``sockets`` more open files (the spoofers' sockets)."""
+    _soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, sockets + 256), hard))
+
+
+def stop_sim(proc: subprocess.Popen[str]) -> str:
+    """SIGINT the simulator; its last output line (its counters)."""
+    proc.send_signal(2)
+    out, _ = proc.communicate(timeout=20)
+    lines = out.strip().splitlines()
+    return lines[-1] if lines else ""
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sources", type=int, default=60000)
     parser.add_argument("--spoofers", type=int, default=1000)
     parser.add_argument("--seconds", type=float, default=5.0)
     args = parser.parse_args()
-    _soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, args.spoofers + 256), hard))
+    raise_file_limit(args.spoofers)
 
     held, parsers = codec_memory_mb(args.sources)
     print(f"codec: {args.sources} source addresses -> {parsers} parsers, {held:.1f} MB held")
@@ -151,54 +219,20 @@ def main() -> int:
     proc, ports = start_sim(gcs.getsockname()[1])
     try:
         time.sleep(1.0)
-        before = rss_mb(proc.pid)
-        t0 = time.monotonic()
-        spoof_sources(ports[0], args.sources)
-        time.sleep(1.0)
-        after = rss_mb(proc.pid)
-        print(f"memory: {args.sources} spoofed sources (datagrams sent) in {time.monotonic() - t0:.1f} s: "
-              f"RSS {before:.1f} -> {after:.1f} MB (+{after - before:.1f} MB)")  # fmt: skip
+        m = memory_attack(proc.pid, ports[0], args.sources)
+        print(f"memory: {args.sources} spoofed sources (datagrams sent) in {m['send_s']:.1f} s: "
+              f"RSS {m['rss_before_mb']:.1f} -> {m['rss_after_mb']:.1f} MB "
+              f"(+{m['rss_after_mb'] - m['rss_before_mb']:.1f} MB)")  # fmt: skip
         time.sleep(32.0 if args.sources else 0.0)  # earlier peers expire (30 s)
-
-        drain(gcs)
-        c0 = cpu_s(proc.pid)
-        base_hb = gcs_heartbeats(gcs, args.seconds)
-        base_cpu = (cpu_s(proc.pid) - c0) / args.seconds
-        frame = heartbeat()
-        flock = []
-        for k in range(args.spoofers):
-            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind((f"127.1.{1 + k // 250}.{1 + k % 250}", 0))
-            s.setblocking(False)
-            flock.append(s)
-
-        def beat() -> None:
-            for s in flock:
-                try:
-                    s.sendto(frame, ("127.0.0.1", ports[0]))
-                except OSError:
-                    pass
-                try:
-                    while s.recv(65535):
-                        pass
-                except OSError:
-                    pass
-
-        beat()
-        time.sleep(1.0)
-        c0 = cpu_s(proc.pid)
-        att_hb = gcs_heartbeats(gcs, args.seconds, tick=beat)
-        att_cpu = (cpu_s(proc.pid) - c0) / args.seconds
-        for s in flock:
-            s.close()
-        print(f"cpu: baseline {100 * base_cpu:.1f}% of a core, GCS heartbeats {base_hb:.2f}/s; "
-              f"{args.spoofers} spoofed heartbeats/s: {100 * att_cpu:.1f}% "
-              f"(x{att_cpu / max(base_cpu, 1e-9):.1f}), GCS heartbeats {att_hb:.2f}/s")  # fmt: skip
+        c = cpu_attack(proc.pid, ports[0], gcs, args.spoofers, args.seconds)
+        print(f"cpu: baseline {100 * c['base_cpu']:.1f}% of a core, GCS heartbeats "
+              f"{c['base_heartbeats_s']:.2f}/s; {args.spoofers} spoofed heartbeats/s: "
+              f"{100 * c['attacked_cpu']:.1f}% (x{c['attacked_cpu'] / max(c['base_cpu'], 1e-9):.1f}), "
+              f"GCS heartbeats {c['attacked_heartbeats_s']:.2f}/s")  # fmt: skip
     finally:
-        proc.send_signal(2)
-        out, _ = proc.communicate(timeout=20)
+        last = stop_sim(proc)
         gcs.close()
-    print("simulator:", out.strip().splitlines()[-1])
+    print("simulator:", last)
     return 0
 
 

@@ -201,3 +201,43 @@ def test_encode_finds_every_nonfinite_and_only_those():
     np.testing.assert_array_equal(decode(data, Vector).values, tricky)
     huge = Ping(sender=1, value=1.7e308, items=[-1.7e308, 5e-324])  # finite extremes
     assert decode(encode(huge), Ping) == huge
+
+
+def test_a_rejected_payload_is_not_rebuilt_unless_it_can_hold_a_nan(monkeypatch):
+    """Issue 23: rejecting a ``ConsensusState`` of 45,000 names (msgspec: 12 us) cost 230 ms
+    while the codec rebuilt the whole map to look for a version and a NaN, the GIL held in the
+    receiver's Zenoh thread: ``benchmarks/bench_poison.py --only d4`` saw 20 of them stop a
+    daemon's status for 2.6 s. The header alone gives the version; only bytes that can hold a
+    NaN or an infinity (float64 or float32) are walked, and a too-long list is out_of_range
+    whatever it holds."""
+    import struct
+
+    from messages import codec
+    from messages.peer import PeerPayload
+
+    walks: list[int] = []
+    real_peek = codec._peek
+    monkeypatch.setattr(codec, "_peek", lambda data: walks.append(len(data)) or real_peek(data))
+
+    def consensus(n: int, x: float, version: int = SCHEMA_VERSION) -> bytes:
+        return msgspec.msgpack.encode(
+            {"type": "peer.consensus", "version": version, "sender": 1, "seq": 5,
+             "stamp_s": 10.0, "states": [[f"n{k}", [x], []] for k in range(n)]}
+        )  # fmt: skip
+
+    for data, reason in [
+        (consensus(45_000, 0.0), "out_of_range"),  # too many names
+        (consensus(45_000, float("nan")), "out_of_range"),  # too many, whatever they hold
+        (consensus(3, 1e300), "out_of_range"),  # a huge finite value
+        (consensus(45_000, 0.0, version=SCHEMA_VERSION + 1), "version"),
+    ]:
+        with pytest.raises(MessageError) as info:
+            decode(data, PeerPayload)
+        assert info.value.reason == reason, info.value
+    assert walks == []
+    nan32 = consensus(3, 0.5).replace(b"\xcb" + struct.pack(">d", 0.5), b"\xca\x7f\xc0\x00\x00", 1)
+    for data in (consensus(3, float("inf")), nan32):  # a hand-made float32 NaN too
+        with pytest.raises(MessageError) as info:
+            decode(data, PeerPayload)
+        assert info.value.reason == "nonfinite", info.value
+    assert len(walks) == 2
