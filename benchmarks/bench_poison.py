@@ -48,6 +48,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
+import itertools
 import json
 import math
 import os
@@ -85,6 +86,10 @@ ISSUE_NAMES = 45_000
 ISSUE_NAME_PAYLOADS = 20
 ISSUE_EDGES = 20_000
 LIST_MAX = 4096  # messages.limits.LIST_MAX (checked in main)
+FAST = 1.5
+"""m/s: a vehicle faster than this is near the daemons' 2 m/s limit (the demo's formation
+flies at a few tenths of a m/s)."""
+BITFLIP_SEEDS = (23, 24, 25)
 
 
 class _Head(msgspec.Struct):
@@ -109,6 +114,10 @@ class Row:
     phases: dict[int, str]
     finite: dict[int, bool]
     converged: dict[int, bool]
+    scale_error: float
+    """The largest ``|1/chihat - d| / d`` over every daemon's distance estimates (NaN: none)."""
+    speed_m_s: float
+    """The fastest vehicle's true speed (NaN: no truth yet)."""
 
 
 @dataclass
@@ -182,6 +191,11 @@ class Team:
                     {k: str(getattr(s.phase, "value", s.phase)) for k, s in st.items()},
                     {k: all(map(math.isfinite, s.agent.p_hat_ned)) for k, s in st.items()},
                     {k: bool(s.agent.scale_converged) for k, s in st.items()},
+                    scale_error(st, p),
+                    max(
+                        (float(np.linalg.norm(tr.v_ned)) for tr in truth.values()),
+                        default=math.nan,
+                    ),
                 )
             )
 
@@ -279,16 +293,41 @@ class Team:
             "nonfinite_estimates": sorted({k for r in rows for k, f in r.finite.items() if not f}),
             "phases_end": rows[-1].phases if rows else {},
             "scale_converged_end": rows[-1].converged if rows else {},
+            "scale_error_end": rows[-1].scale_error if rows else None,
+            "speed_max_m_s": max(
+                (r.speed_m_s for r in rows if r.speed_m_s == r.speed_m_s), default=None
+            ),
+            "fast_s": float(
+                sum(r1.mono - r0.mono for r0, r1 in itertools.pairwise(rows) if r0.speed_m_s > FAST)
+            ),
+            "scale_error_over_5pct_s": float(
+                sum(
+                    r1.mono - r0.mono
+                    for r0, r1 in itertools.pairwise(rows)
+                    if r0.scale_error > 0.05
+                )
+            ),
+            "scale_error_max": max(
+                (r.scale_error for r in rows if r.scale_error == r.scale_error), default=None
+            ),
             "motion_per_s": rates,
         }
 
     def state(self) -> dict[str, Any]:
         st = self.ev.snapshot()
+        dead = self.procs.dead()
         return {
-            "dead": self.procs.dead(),
+            "dead": dead,
+            "dead_exit_codes": {n: p.returncode for n, p in self.procs.procs if n in dead},
+            "dead_log_tails": {n: self.log_tail(n) for n in dead},
             "dropped": {k: dict(s.dropped) for k, s in sorted(st.items())},
             "alarms_seen": {a: sorted(ids) for a, ids in sorted(self.ev.alarms_seen.items())},
         }
+
+    def log_tail(self, name: str, lines: int = 40) -> list[str]:
+        path = self.log_dir / f"{name}.log"
+        text = path.read_text(errors="replace") if path.exists() else ""
+        return text.splitlines()[-lines:]
 
     def sigterm_daemons(self, timeout_s: float = 30.0) -> dict[int, float | None]:
         """SIGTERM every daemon at once: seconds until each exited (None: not in time)."""
@@ -314,6 +353,20 @@ class Team:
             if found:
                 out[k] = json.loads(found[-1])
         return out
+
+
+def scale_error(status: dict[int, Any], p: np.ndarray | None) -> float:
+    """The largest relative error of the distances the daemons estimate (``1/chihat``, their
+    own or received) against the truth."""
+    if p is None:
+        return math.nan
+    errs = [
+        abs(1.0 / chi - d) / d
+        for i, s in status.items()
+        for j, chi in s.agent.chi_hat_inv_m.items()
+        if chi and 0 <= j < len(p) and (d := float(np.linalg.norm(p[j] - p[i]))) > 0
+    ]
+    return max(errs) if errs else math.nan
 
 
 def formation_size_m(p: np.ndarray | None) -> float:
@@ -400,15 +453,25 @@ def _bitflip(rng: random.Random, data: bytes, bits: int) -> bytes:
     return bytes(b)
 
 
-def attack_d1_bitflip(quick: bool, count: int = ISSUE_BITFLIPS, spread_s: float = 2.0) -> dict:
-    watch = 10.0 if quick else 30.0
-    rng = random.Random(23)
+def attack_d1_bitflip(
+    quick: bool,
+    count: int = ISSUE_BITFLIPS,
+    spread_s: float = 2.0,
+    kinds_only: frozenset[str] | None = None,
+    seed: int = 23,
+    watch_s: float | None = None,
+) -> dict:
+    """``kinds_only``: mutate only these payload tags (``peer.motion``, ...)."""
+    watch = watch_s if watch_s is not None else 10.0 if quick else 30.0
+    rng = random.Random(seed)
     with flying_team("d1-bitflip") as team:
         base = settle(team, quick)
         team.capture = True
         time.sleep(2.0)
         team.capture = False
         corpus = [(k, msgspec.msgpack.decode(d)) for k, d in team.captured if "/peer/" in k]
+        if kinds_only is not None:
+            corpus = [(k, raw) for k, raw in corpus if raw.get("type") in kinds_only]
         t_mono, t_sim = time.monotonic(), team.now_s()
         tried = accepted = 0
         kinds: dict[str, int] = {}
@@ -689,7 +752,9 @@ def attack_d12(quick: bool) -> dict[str, Any]:
 
 ATTACKS: dict[str, Callable[[bool], dict[str, Any]]] = {
     "d1-poison": attack_d1_poison,
-    "d1-bitflip": attack_d1_bitflip,
+    "d1-bitflip": lambda quick: {
+        "rounds": [attack_d1_bitflip(quick, seed=sd) for sd in BITFLIP_SEEDS[: 1 if quick else 3]]
+    },
     "d2": attack_d2,
     "d4": attack_d4,
     "d7": attack_d7,
@@ -718,6 +783,28 @@ def _size(r: dict) -> str:
             f"(min {_f(w['formation_m_min'])}) in {w['seconds']:.0f} s")  # fmt: skip
 
 
+def _scale(w: dict) -> str:
+    conv = sum(w["scale_converged_end"].values())
+    end, worst = (100 * (w[k] if w[k] is not None else math.nan)
+                  for k in ("scale_error_end", "scale_error_max"))  # fmt: skip
+    return (f"distance estimates off by {_f(end, '.1f')}% at the end (worst {_f(worst, '.1f')}%, "
+            f"> 5% for {w['scale_error_over_5pct_s']:.1f} s), {conv}/{N} scale_converged")  # fmt: skip
+
+
+def _fast(w: dict) -> str:
+    return (f"fastest vehicle {_f(w['speed_max_m_s'], '.1f')} m/s, {w['fast_s']:.1f} s "
+            f"above {FAST} m/s")  # fmt: skip
+
+
+def _top_drops(r: dict, n: int = 5) -> str:
+    tot: dict[str, int] = {}
+    for d in r["dropped"].values():
+        for x, v in d.items():
+            tot[x] = tot.get(x, 0) + v
+    top = sorted(tot.items(), key=lambda kv: -kv[1])[:n]
+    return "receivers dropped " + ", ".join(f"{v} `{x}`" for x, v in top)
+
+
 def _drops(r: dict, *reasons: str) -> str:
     tot = {x: sum(d.get(x, 0) for d in r["dropped"].values()) for x in reasons}
     return ", ".join(f"{v} `{x}`" for x, v in tot.items())
@@ -730,18 +817,20 @@ def rows(results: dict[str, dict]) -> list[tuple[str, str, str]]:
         out.append((
             "1: one MotionShare v_body = 1e300 + one LocalizationState p_hat = 1e300",
             "NaN estimates, status never published again; formation 10 -> 4.3 m",
-            f"{_alive(r)}; {_gap(w)}; {_size(r)}; non-finite estimates on "
-            f"{w['nonfinite_estimates'] or 'none'}; {_drops(r, 'out_of_range')}; "
+            f"{_alive(r)}; {_gap(w)}; {_size(r)}; {_scale(w)}; non-finite estimates on "
+            f"{w['nonfinite_estimates'] or 'none'}; {_drops(r, 'out_of_range')}; {_fast(w)}; "
             f"phases {sorted(set(w['phases_end'].values()))}",
         ))  # fmt: skip
-    if r := results.get("d1-bitflip"):
+    for n, r in enumerate(results.get("d1-bitflip", {}).get("rounds", [])):
         w = r["after"]
         out.append((
             f"1: {r['mutations_sent']:,} codec-accepted bit-flip mutations in "
-            f"{r['sent_in_s']:.1f} s",
+            f"{r['sent_in_s']:.1f} s (round {n + 1}, fresh team; "
+            f"{r['by_kind'].get('peer.consensus', 0)} ConsensusState)",
             "1,495 broke all 3 daemons within 2 s",
-            f"{_alive(r)}; {_gap(w)}; {_size(r)}; non-finite estimates on "
-            f"{w['nonfinite_estimates'] or 'none'}; phases {sorted(set(w['phases_end'].values()))}; "
+            f"{_alive(r)}; {_gap(w)}; {_size(r)}; {_scale(w)}; non-finite estimates on "
+            f"{w['nonfinite_estimates'] or 'none'}; {_top_drops(r)}; "
+            f"phases {sorted(set(w['phases_end'].values()))}; {_fast(w)}; "
             f"alarms {sorted(r['alarms_seen'])}",
         ))  # fmt: skip
     if r := results.get("d2"):
@@ -752,6 +841,7 @@ def rows(results: dict[str, dict]) -> list[tuple[str, str, str]]:
             "peer state frozen, vehicle blind, `bearings_stale` never fires; team drifting "
             "apart 8 -> 36 m in 30 s",
             f"{_alive(r)}; {_size(r)}; largest displacement {w['largest_displacement_m']:.1f} m; "
+            f"{_fast(w)}; "
             f"`bearings_stale` {'fired' if stale else 'not raised (not blind)'}; "
             f"{_drops(r, 'core_future_stamp', 'camera_future_stamp')}",
         ))  # fmt: skip
