@@ -4,20 +4,20 @@ Each subcommand lives next to the code it drives (``groundstation/check_cli.py``
 ``sim/cli.py``, ...); this module only assembles them. Subcommand modules import their heavy
 dependencies (Zenoh, OpenCV, casadi, matplotlib) inside the command function so that
 ``bearingflock --help`` stays instant. ``bearingflock agent`` runs numpy's BLAS on one thread
-unless ``OPENBLAS_NUM_THREADS`` / ``OMP_NUM_THREADS`` are set (``onboard/daemon/blas_env.py``):
-set before the subcommand modules import numpy.
+and loads one MAVLink dialect unless the user set the variables (``onboard/daemon/daemon_env.py``):
+set before the subcommand modules import numpy or pymavlink.
 """
 
-# the BLAS thread count must be in the environment before any import below loads numpy
+# the daemon's BLAS and MAVLink variables must be set before any import below loads numpy
 
 from __future__ import annotations
 
 import os
 import sys
 
-from onboard.daemon.blas_env import daemon_blas_defaults
+from onboard.daemon.daemon_env import daemon_env_defaults
 
-os.environ.update(daemon_blas_defaults(sys.argv[1:], os.environ))  # agent: one BLAS thread
+os.environ.update(daemon_env_defaults(sys.argv[1:], os.environ))  # agent: one BLAS thread, ...
 
 import typer
 

@@ -78,7 +78,12 @@ def agent(
     ] = False,
 ) -> None:
     """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
+    import os
+
     from messages.fatal import FatalThreads
+    from onboard.daemon.daemon_env import block_unused_imports
+
+    block_unused_imports(os.environ, sys.modules)  # before pymavlink: one dialect (issue 27)
 
     # first thing: a worker thread that dies at any time (a camera capture at startup, the
     # flight sequence, the link's loops) stops the daemon, which holds and exits 1 saying why,
