@@ -301,9 +301,12 @@ class Scale:
         return None if m is None or not self.peers.is_fresh(m[0], t) else m[1]
 
     def distances(self) -> dict[int, float]:
-        """SfM distance per reciprocal edge with a positive estimate (the rigidity layer's
-        scale)."""
-        return {j: 1.0 / c for j in self.reciprocal if (c := self.chi_hat(j)) and c > 0}
+        """SfM distance per reciprocal edge whose estimate is at least ``chi_min_inv_m`` (the
+        rigidity layer's scale; the localization and the formation's distances use the same
+        rule). A received ``chihat`` of 1e-158, finite and within the codec's range, was a
+        distance of 1e158 m (issue 23's bit-flip campaign)."""
+        chi_min = self.gains.chi_min_inv_m
+        return {j: 1.0 / c for j in self.reciprocal if (c := self.chi_hat(j)) and c >= chi_min}
 
     def _localize(self, own: Own) -> None:
         t_s = own.t_s

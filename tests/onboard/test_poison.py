@@ -75,6 +75,22 @@ def test_a_received_sfm_estimate_expires():
     assert all(math.isfinite(x) for x in c.status().p_hat_ned)
 
 
+def test_a_received_sfm_estimate_of_a_vanishing_inverse_distance_is_no_distance():
+    """A bit-flipped ``chihat`` (1e-158: finite, within the codec's range) reached the rigidity
+    layer as a distance of 1e158 m (bench_poison d1-bitflip); the floor every other user of
+    an SfM estimate applies (``chi_min_inv_m``) now holds for the rigidity layer's too."""
+    c = core(1)
+    c.step(1.0, own(1.0))
+    for chi, kept in ((0.25, True), (1e-158, False), (0.5 * c.scale.gains.chi_min_inv_m, False)):
+        est = SfmEstimate(
+            sender=0, seq=1, stamp_s=1.01, edges=[SfmEdgeEstimate(1, chi, 1.0, 0.0, 10.0)]
+        )
+        c.scale.sfm_in.clear()
+        c.step(1.01, own(1.01), [wire(est)])
+        assert c.chi_hat(0) == chi  # still reported as received
+        assert (c.scale.distances().get(0) == 1.0 / chi) is kept  # edge (1, 2) is its own
+
+
 # ---------------------------------------------------------------- defect 2: future stamps
 
 
