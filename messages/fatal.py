@@ -6,7 +6,8 @@ thread is to print it and let the thread go: the process keeps running, looks al
 nothing (a simulator whose loop died on ``EMFILE`` stood still with its clock frozen).
 
 :class:`FatalThreads` replaces :data:`threading.excepthook` for one process: the first unhandled
-exception in any thread is logged with its traceback, kept as a one-line :attr:`message`, and
+exception in any thread is logged with its traceback (a :class:`PermanentError` without one),
+kept as a one-line :attr:`message`, and
 ``on_fatal`` is called (the process's own stop: the daemon's stop event, the simulator's stop
 flag) so that it shuts down in order and exits nonzero. If it has not exited
 ``grace_s`` later (its main loop is itself stuck), the process exits at once with code
@@ -22,6 +23,13 @@ import sys
 import threading
 from collections.abc import Callable
 from typing import Any
+
+
+class PermanentError(Exception):
+    """An error of the environment or the configuration that no retry cures (a port another
+    process holds): a thread raises it to end its process with its one-line message and no
+    traceback, as the command line's own errors do. Raise it ``from`` the cause."""
+
 
 FATAL_EXIT_CODE = 70
 """Exit code of a process ended by the grace timer (EX_SOFTWARE)."""
@@ -64,15 +72,15 @@ class FatalThreads:
         if args.exc_type is SystemExit:
             return  # a thread that chose to end
         name = args.thread.name if args.thread is not None else "?"
-        text = f"thread {name!r} died: {args.exc_type.__name__}: {args.exc_value}"
+        permanent = isinstance(args.exc_value, PermanentError)
+        text = (str(args.exc_value) if permanent
+                else f"thread {name!r} died: {args.exc_type.__name__}: {args.exc_value}")  # fmt: skip
         with self._lock:
             first = not self.message
             if first:
                 self.message = text
-        log.critical(
-            "%s (stopping the process)", text,
-            exc_info=(args.exc_type, args.exc_value, args.exc_traceback),  # type: ignore[arg-type]
-        )  # fmt: skip
+        trace = None if permanent else (args.exc_type, args.exc_value, args.exc_traceback)
+        log.critical("%s (stopping the process)", text, exc_info=trace)  # type: ignore[arg-type]
         if not first:
             return
         self._timer = threading.Timer(self.grace_s, self._give_up)

@@ -33,7 +33,7 @@ import numpy as np
 from messages.agent import AgentStatus, OwnMeasurements, Setpoint, VehicleStatus
 from messages.codec import Payload
 from messages.command import FleetCommand, drive_problem, formation_problem
-from messages.fatal import is_permanent
+from messages.fatal import PermanentError, is_permanent
 from messages.limits import (
     ANGLE_MAX_RAD,
     DIMENSIONLESS_MAX,
@@ -301,7 +301,7 @@ class AgentDaemon:
                 break
             except LinkError as exc:
                 if is_permanent(exc):  # e.g. the udpin port is taken: ends the process (issue 23)
-                    raise
+                    raise PermanentError(str(exc)) from exc
                 self.state.set(Phase.CONNECTING, str(exc))
                 self.stop_event.wait(1.0)
         if self.stop_event.is_set():

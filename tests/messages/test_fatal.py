@@ -6,7 +6,7 @@ import errno
 import threading
 import time
 
-from messages.fatal import FatalThreads, is_permanent
+from messages.fatal import FatalThreads, PermanentError, is_permanent
 
 
 def _die() -> None:
@@ -54,3 +54,20 @@ def test_permanent_errors() -> None:
     assert is_permanent(OverflowError("port must be 0-65535"))
     assert not is_permanent(TimeoutError("no heartbeat"))
     assert not is_permanent(OSError(errno.ECONNREFUSED, "refused"))
+
+
+def test_a_permanent_error_ends_the_process_with_its_own_line_and_no_traceback(caplog) -> None:
+    stopped: list[str] = []
+
+    def _give_up() -> None:
+        raise PermanentError("cannot open 'udpin:127.0.0.1:9': Address already in use")
+
+    fatal = FatalThreads(stopped.append, exit_now=lambda _c: None).install()
+    try:
+        t = threading.Thread(target=_give_up, name="flight-0")
+        t.start()
+        t.join()
+    finally:
+        fatal.uninstall()
+    assert stopped == ["cannot open 'udpin:127.0.0.1:9': Address already in use"]
+    assert [r.exc_info for r in caplog.records if r.name == "messages.fatal"] == [None]
