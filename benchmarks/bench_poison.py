@@ -79,6 +79,7 @@ for _p in (str(HERE), str(ROOT)):  # this tree's packages and tests/, then the s
 
 from messages.codec import SCHEMA_VERSION, MessageError, decode  # noqa: E402
 from messages.peer import PeerPayload  # noqa: E402
+from onboard.core.config import ScaleGains  # noqa: E402
 
 N = 3
 ISSUE_BITFLIPS = 1495
@@ -356,15 +357,17 @@ class Team:
 
 
 def scale_error(status: dict[int, Any], p: np.ndarray | None) -> float:
-    """The largest relative error of the distances the daemons estimate (``1/chihat``, their
-    own or received) against the truth."""
+    """The largest relative error of the distances the daemons use (``1/chihat``, their own
+    or received, when ``chihat`` is at least the default ``chi_min_inv_m``: below it no layer
+    takes it as a distance, ``onboard/core/scale.py``) against the truth."""
     if p is None:
         return math.nan
+    chi_min = ScaleGains().chi_min_inv_m
     errs = [
         abs(1.0 / chi - d) / d
         for i, s in status.items()
         for j, chi in s.agent.chi_hat_inv_m.items()
-        if chi and 0 <= j < len(p) and (d := float(np.linalg.norm(p[j] - p[i]))) > 0
+        if chi >= chi_min and 0 <= j < len(p) and (d := float(np.linalg.norm(p[j] - p[i]))) > 0
     ]
     return max(errs) if errs else math.nan
 
