@@ -295,6 +295,7 @@ class Team:
             "phases_end": rows[-1].phases if rows else {},
             "scale_converged_end": rows[-1].converged if rows else {},
             "scale_error_end": rows[-1].scale_error if rows else None,
+            "fast_last_s": max((r.mono - a for r in rows if r.speed_m_s > FAST), default=None),
             "speed_max_m_s": max(
                 (r.speed_m_s for r in rows if r.speed_m_s == r.speed_m_s), default=None
             ),
@@ -307,6 +308,9 @@ class Team:
                     for r0, r1 in itertools.pairwise(rows)
                     if r0.scale_error > 0.05
                 )
+            ),
+            "scale_error_last_over_5pct_s": max(
+                (r.mono - a for r in rows if r.scale_error > 0.05), default=None
             ),
             "scale_error_max": max(
                 (r.scale_error for r in rows if r.scale_error == r.scale_error), default=None
