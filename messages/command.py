@@ -26,8 +26,10 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import msgspec
+import numpy as np
 
 from messages.codec import Payload
+from messages.formation import COINCIDENT_TOLERANCE_M
 from messages.limits import (
     LIST_MAX,
     SEQ_MAX,
@@ -108,7 +110,9 @@ class FormationChange(Payload, tag="command.formation"):
 
 def formation_problem(change: FormationChange, fleet_ids: set[int] | frozenset[int]) -> str:
     """Why a fleet with ``fleet_ids`` cannot fly ``change`` (``""``: it can): duplicate,
-    unknown or missing vehicle ids, an unknown leader, coincident vehicles."""
+    unknown or missing vehicle ids, an unknown leader, coincident vehicles (closer than
+    :data:`messages.formation.COINCIDENT_TOLERANCE_M`, as in a formation file: their desired
+    bearing is undefined)."""
     ids = [a.id for a in change.agents]
     if len(set(ids)) != len(ids):
         return f"duplicate vehicle ids in formation {change.formation_id}"
@@ -120,11 +124,17 @@ def formation_problem(change: FormationChange, fleet_ids: set[int] | frozenset[i
         return f"formation {change.formation_id} leaves out vehicles {missing}"
     if change.leader is not None and change.leader not in fleet_ids:
         return f"unknown leader {change.leader} in formation {change.formation_id}"
-    seen: set[tuple[float, float, float]] = set()
-    for a in change.agents:
-        if a.position_ned in seen:
-            return f"coincident vehicles in formation {change.formation_id}"
-        seen.add(a.position_ned)
+    # closer than the formation files' tolerance (not only equal): two slots 1e-200 m apart
+    # passed an equality test, and their desired bearing (p_j - p_i) / |p_j - p_i| was NaN
+    p = np.array([a.position_ned for a in change.agents], dtype=float)
+    gaps = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=-1)
+    np.fill_diagonal(gaps, np.inf)
+    if gaps.min() < COINCIDENT_TOLERANCE_M:
+        i, j = np.unravel_index(np.argmin(gaps), gaps.shape)
+        return (
+            f"coincident vehicles {change.agents[i].id} and {change.agents[j].id} (closer than "
+            f"{COINCIDENT_TOLERANCE_M:g} m) in formation {change.formation_id}"
+        )
     return ""
 
 

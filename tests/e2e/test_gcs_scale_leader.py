@@ -8,7 +8,10 @@ daemons (real processes, MAVLink sockets and Zenoh; the ``fleet`` fixture of con
 * `gcs formation --leader 0 --distances` (the planned formation), then `gcs leader 0 --velocity
   ... --duration ...` (experiment 3): the leader moves by velocity x duration and the followers
   with it, keeping its bearings (the largest error between a true body bearing of the sensing
-  graph and its desired one stays bounded); a drive for a vehicle that leads nothing fails."""
+  graph and its desired one stays bounded); a drive for a vehicle that leads nothing fails;
+* the same, then `gcs leader 0 --waypoints FILE` with three waypoints 1.5 m apart in the
+  leader's odometry frame: it passes each one in order and holds the last, its status walks
+  ``waypoint 1/3`` ... ``waypoints done``, the followers keep its bearings and distances."""
 
 from __future__ import annotations
 
@@ -154,5 +157,97 @@ def test_a_driven_leader_moves_and_the_followers_keep_its_bearings(fleet, wait_f
     assert {"velocity", "velocity done"} <= states
     assert np.linalg.norm(moved - want) < 0.3 * np.linalg.norm(want)
     assert np.linalg.norm(followers_moved - want) < 0.4 * np.linalg.norm(want)
+    assert max(errors) < 15.0
+    assert errors[-1] < 6.0
+
+
+def _waypoint_file(path, points, speed_m_s: float):
+    lines = [f"speed_m_s = {speed_m_s:g}"]
+    for p in points:
+        lines += ["[[waypoint]]", "ned = [" + ", ".join(f"{x:.4f}" for x in p) + "]"]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_leader_flies_its_waypoints_in_order_and_the_followers_keep_its_bearings(
+    fleet, wait_for, tmp_path
+):
+    """`gcs leader 0 --waypoints FILE` (paper 002's leader driven by a waypoint list): three
+    waypoints 1.5 m apart in the leader's odometry frame (the autopilot's local position: the
+    truth less where the vehicle booted). The leader passes within
+    ``REACH_M`` of each one in order and holds the last; its status walks ``waypoint 1/3`` ...
+    ``waypoints done``; the followers keep its bearings as in the velocity drive."""
+    ev, _, ports, _, name = fleet
+    plan = ev.plan
+    same = _formation_file(tmp_path / "same.toml", plan.p_ned, plan.yaw_rad, "ring")
+    _flying(ev, wait_for)
+    out = gcs("formation", str(same), "--leader", "0", "--distances", "--id", "71", "--yes",
+              *_links(ports, name))  # fmt: skip
+    assert out.returncode == 0, out.stdout + out.stderr
+    wait_for(lambda: _bearing_error_deg(ev, ev.desired_beta) < 6.0, 15.0,
+             "the ring settled around the leader", ev)  # fmt: skip
+
+    # the leader's local origin: where it booted, on the ground below its start position
+    # (sim/autopilot/telemetry.py; the world puts the start layout on the ground)
+    home = np.array([*plan.p_start_ned[0][:2], 0.0])
+    start, start_yaw = _truth(ev)
+    local0 = start[0] - home
+    assert abs(ev.snapshot()[0].altitude_m + local0[2]) < 0.3  # the frame the autopilot reports
+    legs = np.array([[1.5, 0.0, 0.0], [1.5, 1.5, 0.0], [0.0, 1.5, 0.0]])
+    points = local0 + legs
+    speed_m_s, reach_m = 0.3, 0.35  # the agent's tolerance 0.3 m, plus a status period
+    path = _waypoint_file(tmp_path / "square.toml", points.tolist(), speed_m_s)
+    out = gcs("leader", "0", "--waypoints", str(path), "--id", "8", "--yes", "--json",
+              *_links(ports, name))  # fmt: skip
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert json.loads(out.stdout)["ok"] and ev.snapshot()[0].leader_drive_id == 8
+    t0 = time.monotonic()  # the acknowledgement: the leader's status shows the drive
+    i, j = np.triu_indices(N, 1)
+    d_planned = np.linalg.norm(plan.p_ned[j] - plan.p_ned[i], axis=1)
+    dist_errors = [float(_distance_error(ev, d_planned).max())]  # at the ack
+
+    reached: list[float] = []  # seconds from the command to each waypoint, in order
+    errors, states = [], []
+    deadline = t0 + 30.0
+    while time.monotonic() < deadline:
+        local = _truth(ev)[0][0] - home
+        k = len(reached)
+        if k < len(points) and np.linalg.norm(local - points[k]) < reach_m:
+            reached.append(time.monotonic() - t0)
+        state = ev.snapshot()[0].agent.leader_drive
+        if not states or states[-1] != state:
+            states.append(state)
+        errors.append(_bearing_error_deg(ev, ev.desired_beta))
+        dist_errors.append(float(_distance_error(ev, d_planned).max()))
+        if state == "waypoints done" and len(reached) == len(points):
+            break
+        time.sleep(0.1)
+    t_done = time.monotonic() - t0
+    time.sleep(3.0)  # it holds the last one; the followers settle
+    end = _truth(ev)[0]
+    held_m = float(np.linalg.norm(end[0] - home - points[-1]))
+    errors.append(_bearing_error_deg(ev, ev.desired_beta))
+    dist_errors.append(float(_distance_error(ev, d_planned).max()))
+    turned_deg = float(np.degrees(np.mean(np.unwrap(_truth(ev)[1] - start_yaw))))
+    followers_moved = end[1:].mean(axis=0) - start[1:].mean(axis=0)
+    print(
+        f"waypoints reached at {[round(t, 1) for t in reached]} s after the ack "
+        f"(legs of 1.5 m at {speed_m_s} m/s), done at {t_done:.1f} s, held {held_m:.2f} m from "
+        f"the last; followers' centre moved {np.round(followers_moved, 2).tolist()} m (the "
+        f"leader {legs[-1].tolist()}), the team turned {turned_deg:.1f} deg; distance error "
+        f"{100 * dist_errors[0]:.1f}% at the ack, max {100 * max(dist_errors):.1f}%, at the end {100 * dist_errors[-1]:.1f}%; "
+        f"states {states}; bearing error max {max(errors):.2f} deg, median "
+        f"{np.median(errors):.2f}, 3 s after the last {errors[-1]:.2f} deg"
+    )
+    assert len(reached) == len(points), (reached, states)
+    assert [s for s in states if s.startswith("waypoint")] == [
+        "waypoint 1/3", "waypoint 2/3", "waypoint 3/3", "waypoints done"
+    ]  # fmt: skip
+    assert held_m < reach_m
+    # the followers came along: they kept the distances (--distances) and, above, the bearings
+    # (body frame: a turn of the whole team with its yaws keeps them, so their centre is not
+    # where the leader's displacement alone puts it)
+    assert followers_moved @ legs[-1] > 0.5 * legs[-1] @ legs[-1]
+    assert max(dist_errors) < 0.25 and dist_errors[-1] < 0.12
     assert max(errors) < 15.0
     assert errors[-1] < 6.0

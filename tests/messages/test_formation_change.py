@@ -92,6 +92,20 @@ def test_vehicle_ids_must_be_the_fleets_exactly():
     assert "coincident" in formation_problem(_change(agents=same), {0, 1, 2})
 
 
+@pytest.mark.parametrize("apart_m", [1e-200, 1e-160, 1e-9, 5e-7])
+def test_vehicles_closer_than_the_formation_files_tolerance_are_coincident(apart_m):
+    """Found by the command fuzzing (tests/onboard/test_fuzz_receivers.py): two slots near the
+    origin 1e-200 m apart passed the equality test, and the agents' desired bearing between
+    them, (p_j - p_i) / |p_j - p_i| with |.| underflowing to 0, was NaN: a NaN setpoint."""
+    slot = _change().agents
+    near = [FormationSlot(id=0, position_ned=(0.0, 0.0, 0.0)),
+            FormationSlot(id=1, position_ned=(apart_m, 0.0, 0.0)), slot[2]]  # fmt: skip
+    problem = formation_problem(_change(agents=near), {0, 1, 2})
+    assert "coincident vehicles 0 and 1" in problem
+    far = [near[0], FormationSlot(id=1, position_ned=(2e-6, 0.0, 0.0)), slot[2]]
+    assert formation_problem(_change(agents=far), {0, 1, 2}) == ""
+
+
 def test_the_listener_takes_it_only_on_its_targets_key():
     data = encode(_change(target=1))
     d = classify("alpha", "bf/alpha/1/command/formation", data)

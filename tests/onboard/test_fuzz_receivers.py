@@ -2,7 +2,17 @@
 message type go through the codec and, when accepted, the replay window and into a warm agent
 core's step. Invariants: no exception escapes, no estimate becomes non-finite, every table
 stays within its bound, and the status is always publishable. Bounded (a fixed number of
-derandomized examples) so the suite stays in the fast tier."""
+derandomized examples) so the suite stays in the fast tier.
+
+The warm team flies once on paper 000's localization and once on paper 002's
+(``[core] localization = "paper002"``, :mod:`onboard.core.localization002`; docs/papers.md),
+so the ``peer.gradloc`` share (paper 002 eq. 16-17 and 22, docs/equations.md) is fuzzed too.
+The command scope (issue 25's :class:`messages.command.FormationChange` and
+:class:`~messages.command.LeaderDrive`, and :class:`~messages.command.FleetCommand`) goes
+through the daemon's own receive path: the peer link's handlers
+(:meth:`onboard.daemon.peers.PeerLink._targeted`) and the loop's adoption
+(:meth:`onboard.daemon.loop.AgentDaemon._handle_commands`), then the core flies what was
+adopted."""
 
 from __future__ import annotations
 
@@ -13,11 +23,21 @@ from typing import Any
 
 import msgspec
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from messages.agent import AgentStatus, BearingMeasurement, OwnMeasurements
+from messages.agent import AgentStatus, BearingMeasurement, OwnMeasurements, VehicleStatus
 from messages.codec import MessageError, Payload, decode, encode
+from messages.command import (
+    FleetCommand,
+    FormationChange,
+    FormationSlot,
+    LeaderDrive,
+    drive_problem,
+    formation_problem,
+)
+from messages.limits import POSITION_MAX_M, SPEED_MAX_M_S
 from messages.peer import PeerPayload
 from messages.sim import CameraBearings, SimClock
 from onboard.core.agent import AgentCore
@@ -25,7 +45,8 @@ from onboard.core.config import AgentConfig, build_config
 from onboard.core.scale import CONSENSUS_NAMES
 from onboard.daemon.bearings import SimCameraSource
 from onboard.daemon.clock import SimClockFollower, sim_clock_handler
-from onboard.daemon.peers import DropCounter
+from onboard.daemon.loop import AgentDaemon
+from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.daemon.replay import SeqWindow
 from onboard.geometry import bearings_body
 
@@ -45,7 +66,11 @@ FUZZ = settings(
 )
 
 
-def _configs() -> list[AgentConfig]:
+LOCALIZATIONS = ("paper000", "paper002")
+"""The warm team's localization: paper 000's filter, or paper 002's gradient localization."""
+
+
+def _configs(localization: str = "paper000") -> list[AgentConfig]:
     beta, _ = bearings_body(P0, YAW0, list(EDGES))
     return [
         build_config(
@@ -64,6 +89,7 @@ def _configs() -> list[AgentConfig]:
             rigidity_maintenance=True,  # so the rigidity layer's payloads are fuzzed too
             rigidity_period_s=0.02,
             rigidity_scale_from_sfm=True,
+            localization=localization,
         )
         for i in range(N)
     ]
@@ -79,13 +105,13 @@ def _own(t_s: float, p: np.ndarray, yaw: np.ndarray, v: np.ndarray, w: np.ndarra
     )  # fmt: skip
 
 
-@lru_cache(maxsize=1)
-def _warm_team() -> tuple[AgentCore, dict[str, list[bytes]], float]:
+@lru_cache(maxsize=len(LOCALIZATIONS))
+def _warm_team(localization: str = "paper000") -> tuple[AgentCore, dict[str, list[bytes]], float]:
     """Three cores flown for 1 s with every payload through the codec: the fuzzed receiver
     (warm, with every table filled) and a corpus of real payloads of every kind."""
     from onboard.geometry import rot_z
 
-    cores = [AgentCore(c) for c in _configs()]
+    cores = [AgentCore(c) for c in _configs(localization)]
     p, yaw = P0.copy(), YAW0.copy()
     v, w = np.zeros((N, 3)), np.zeros(N)
     inbox: list[list[Payload]] = [[] for _ in range(N)]
@@ -218,6 +244,12 @@ def _check_invariants(c: AgentCore, setpoint: Any) -> None:
     for table in (*tables, c.bearings.beta_in, s.sfm_in, c.peers.heard):
         assert set(table) <= set(c.neighbours)
     assert all(len(h) <= 2000 for h in (c.bearings.own_hist, *s.motion_hist.values()))
+    g = c.gradient_localization
+    if g is not None:  # paper 002's T_i, lambda_ij and the in-edge products: finite, bounded
+        bounded = [*g.t_ned, *g.lam.values(), *(x for w in g._w_in.values() for x in w)]
+        assert all(math.isfinite(x) and abs(x) <= POSITION_MAX_M for x in bounded), bounded
+        assert all(math.isfinite(x) and abs(x) <= SPEED_MAX_M_S for x in g.v_ned), g.v_ned
+        assert set(g.lam) == set(g.out_targets) and set(g._w_in) <= set(g.in_sources)
     status = c.status()
     assert decode(encode(status), AgentStatus) == status  # publishable: finite, encodable
 
@@ -246,22 +278,41 @@ def _deliver(c: AgentCore, t0: float, datas: list[bytes]) -> None:
 
 
 @st.composite
-def _batch(draw: st.DrawFn) -> list[bytes]:
-    _, corpus, _ = _warm_team()
+def _batch(draw: st.DrawFn, localization: str = "paper000") -> list[bytes]:
+    _, corpus, _ = _warm_team(localization)
     one = st.one_of(mutated(corpus), random_payload(corpus))
     return draw(st.lists(one, min_size=2, max_size=6))
 
 
-def test_the_warm_team_covers_every_peer_payload_of_its_mode():
-    _, corpus, _ = _warm_team()
-    assert {"peer.motion", "peer.bearings", "peer.sfm", "peer.excitation", "peer.localization",
-            "peer.consensus", "peer.angle_localization", "peer.rigidity_eigen"} <= set(corpus)  # fmt: skip
+PAPER000_KINDS = {"peer.motion", "peer.bearings", "peer.sfm", "peer.excitation",
+                  "peer.localization", "peer.consensus", "peer.angle_localization",
+                  "peer.rigidity_eigen"}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "localization, kinds",
+    [("paper000", PAPER000_KINDS), ("paper002", PAPER000_KINDS | {"peer.gradloc"})],
+)
+def test_the_warm_team_covers_every_peer_payload_of_its_mode(localization, kinds):
+    warm, corpus, _ = _warm_team(localization)
+    assert kinds <= set(corpus)
+    assert (warm.gradient_localization is not None) == (localization == "paper002")
+    if localization == "paper002":  # the fuzzed receiver takes the shares: its tables are warm
+        g = warm.gradient_localization
+        assert g.rounds > 100 and set(g._w_in) == set(g.in_sources)
 
 
 @FUZZ
 @given(_batch())
 def test_random_and_mutated_peer_payloads_never_break_the_core(datas):
     warm, _, t_end = _warm_team()
+    _deliver(copy.deepcopy(warm), t_end + DT, datas)
+
+
+@settings(FUZZ, max_examples=60)
+@given(_batch("paper002"))
+def test_random_and_mutated_peer_payloads_never_break_a_paper002_core(datas):
+    warm, _, t_end = _warm_team("paper002")
     _deliver(copy.deepcopy(warm), t_end + DT, datas)
 
 
@@ -312,3 +363,245 @@ def test_random_and_mutated_camera_and_clock_samples_never_break_their_receivers
         assert b.target in (0, 2) and abs(math.dist(b.beta_body, (0, 0, 0)) - 1.0) <= 1e-3
         assert b.stamp_s <= t + 1.0
     assert camera.age_s(t) >= 0.0
+
+
+# ------------------------------------------------------------------ command scope
+@lru_cache(maxsize=1)
+def _command_fleet() -> tuple[Any, Any]:
+    """The demo's three-vehicle fleet file (formation-active), loaded once: the daemon's."""
+    import tempfile
+    from pathlib import Path
+
+    from groundstation.demo import DemoPorts, plan_formation, write_demo_files
+    from onboard.daemon.config import load_fleet
+
+    plan = plan_formation(N, seed=1)
+    with tempfile.TemporaryDirectory() as d:
+        path = write_demo_files(Path(d), plan, DemoPorts(zenoh=1, mavlink=2, gcs=3), "fuzz",
+                                "formation-active")  # fmt: skip
+        return load_fleet(path), plan
+
+
+def _slots(p_ned: np.ndarray, yaw_rad: np.ndarray) -> list[FormationSlot]:
+    return [
+        FormationSlot(id=k, position_ned=tuple(float(x) for x in p_ned[k]),
+                      yaw_rad=float(yaw_rad[k]))
+        for k in range(N)
+    ]  # fmt: skip
+
+
+def _command_corpus() -> dict[str, list[bytes]]:
+    """Valid command-scope payloads for the fuzzed vehicle :data:`TARGET`: formation changes
+    (a scale change led by it, a shape change led by another, none led), leader drives (a
+    velocity for a time, waypoints, a hold) and every fleet command."""
+    _, plan = _command_fleet()
+    c = plan.p_ned.mean(axis=0)
+    p2 = c + 2.0 * (plan.p_ned - c)
+    p_iso = plan.p_ned.copy()
+    p_iso[2] += 3.0 * (p_iso[2] - c) / np.linalg.norm(p_iso[2] - c)
+    changes = [
+        FormationChange(sender=0, seq=1, stamp_s=5.0, target=TARGET, formation_id=9,
+                        agents=_slots(p2, plan.yaw_rad), name="double", leader=TARGET,
+                        distances=True, ramp_s=0.5),
+        FormationChange(sender=0, seq=2, stamp_s=5.0, target=TARGET, formation_id=10,
+                        agents=_slots(p_iso, plan.yaw_rad), name="isosceles", leader=0),
+        FormationChange(sender=0, seq=3, stamp_s=5.0, target=TARGET, formation_id=11,
+                        agents=_slots(plan.p_ned, plan.yaw_rad), ramp_s=0.0),
+    ]  # fmt: skip
+    drives = [
+        LeaderDrive(sender=0, seq=1, stamp_s=5.0, target=TARGET, drive_id=5,
+                    velocity_ned=(0.3, -0.1, 0.0), duration_s=4.0),
+        LeaderDrive(sender=0, seq=2, stamp_s=5.0, target=TARGET, drive_id=6,
+                    waypoints_ned=[(2.0, 0.0, -5.0), (2.0, 2.0, -5.5), (0.0, 0.0, -5.0)],
+                    speed_m_s=0.8, tolerance_m=0.2),
+        LeaderDrive(sender=0, seq=3, stamp_s=5.0, target=TARGET, drive_id=7),
+    ]  # fmt: skip
+    commands = [
+        FleetCommand(sender=0, seq=k, stamp_s=5.0, target=TARGET, action=a, request_id=40 + k)
+        for k, a in enumerate(("start", "hold", "land", "stop"))
+    ]
+    return {
+        "command.formation": [encode(m) for m in changes],
+        "command.leader": [encode(m) for m in drives],
+        "command": [encode(m) for m in commands],
+    }
+
+
+COMMAND_CORPUS = _command_corpus()
+TINY = st.sampled_from([0.0, -0.0, 5e-324, 1e-300, -1e-200, 1e-160, 1e-12, 1e-7])
+"""Coordinates near zero: two vehicles this close together have no bearing."""
+
+
+@st.composite
+def collapsed(draw: st.DrawFn) -> bytes:
+    """A real formation change with two of its vehicles (almost) at one place near the origin
+    (a formation file often has a vehicle at ``(0, 0, 0)``)."""
+    raw = msgspec.msgpack.decode(draw(st.sampled_from(COMMAND_CORPUS["command.formation"])))
+    k, m = draw(st.permutations(range(N)))[:2]
+    at = [draw(TINY) for _ in range(3)]
+    near = list(at)
+    near[draw(st.integers(0, 2))] = draw(TINY)
+    raw["agents"][k]["position_ned"], raw["agents"][m]["position_ned"] = at, near
+    return msgspec.msgpack.encode(raw)
+
+
+@st.composite
+def spliced(draw: st.DrawFn) -> bytes:
+    """Two real payloads of one kind crossed: one to three fields of the second replace the
+    first's (a velocity drive with waypoints, a duration without a velocity, another leader,
+    another target, ...), often under a new id."""
+    tag = draw(st.sampled_from(sorted(COMMAND_CORPUS)))
+    a, b = (msgspec.msgpack.decode(draw(st.sampled_from(COMMAND_CORPUS[tag]))) for _ in "ab")
+    fields = sorted(set(b) - {"type", "version", "sender", "seq", "stamp_s"})
+    for name in draw(st.lists(st.sampled_from(fields), min_size=1, max_size=3, unique=True)):
+        a[name] = b[name]
+    if draw(st.booleans()):
+        a["target"] = draw(st.sampled_from([0, 2, TARGET]))  # another vehicle's, on this key
+    for name in ("formation_id", "drive_id"):
+        if name in a and draw(st.booleans()):
+            a[name] = draw(st.integers(12, 40))  # a new one: not taken for a repeat
+    return msgspec.msgpack.encode(a)
+
+
+COMMAND_KINDS = {
+    "command.formation": FormationChange,
+    "command.leader": LeaderDrive,
+    "command": FleetCommand,
+}
+
+
+class _Setpoints:
+    """The autopilot link as far as the command path uses it (a hold or stop zeroes it)."""
+
+    def __init__(self) -> None:
+        self.sent: list[Any] = []
+
+    def set_setpoint(self, sp: Any) -> None:
+        self.sent.append(sp)
+
+
+def _receiver(agent_id: int, drops: DropCounter) -> PeerLink:
+    """The daemon's Zenoh link without its session: its command-scope handlers
+    (``_on_formation``, ``_on_drive``, ``_on_command``) and what the loop drains are real."""
+    import threading
+    from collections import deque
+
+    link = PeerLink.__new__(PeerLink)
+    link.id, link.drops, link._lock = agent_id, drops, threading.Lock()
+    link._commands, link._formation, link._drive = deque(maxlen=100), None, None
+    return link
+
+
+HANDLERS = {"command.formation": "_on_formation", "command.leader": "_on_drive",
+            "command": "_on_command"}  # fmt: skip
+
+
+def _command_outcome(daemon: AgentDaemon, link: PeerLink, topic: str, data: bytes) -> str:
+    """Deliver one sample on ``topic``'s key as Zenoh would and let the loop handle it; what
+    happened: ``dropped`` (counted), ``adopted``, ``queued`` or ``repeat`` (the id flown now,
+    which the ground station repeats until the status shows it)."""
+    before = (daemon._formation, daemon._drive_id, daemon.drops.total, daemon._actions.qsize())
+    getattr(link, HANDLERS[topic])(_Sample(data))
+    daemon._handle_commands()
+    formation, drive_id = daemon._formation, daemon._drive_id
+    dropped = daemon.drops.total - before[2]
+    queued = daemon._actions.qsize() - before[3]
+    changed = formation != before[0] or drive_id != before[1]
+    assert dropped + queued + changed <= 1, (dropped, queued, changed)
+    if dropped:
+        return "dropped"
+    msg = decode(data, COMMAND_KINDS[topic])  # it got through: the codec took it
+    assert msg.target == daemon.id  # and it was this vehicle's
+    if queued:
+        return "queued"
+    if changed:
+        if isinstance(msg, FormationChange):
+            assert formation == (msg.formation_id, msg.leader)
+            assert formation_problem(msg, frozenset(range(N))) == ""
+        else:
+            assert isinstance(msg, LeaderDrive) and drive_id == msg.drive_id
+            assert drive_problem(msg) == "" and formation[1] == daemon.id  # only its leader
+        return "adopted"
+    repeat = msg.formation_id == before[0][0] if isinstance(msg, FormationChange) else (
+        (isinstance(msg, LeaderDrive) and msg.drive_id in (before[1], 0)) or
+        msg.drive_id == drive_id
+    )  # fmt: skip
+    assert repeat, f"{type(msg).__name__} neither adopted nor counted: {msg}"
+    return "repeat"
+
+
+def _fly_commands(daemon: AgentDaemon, t0: float, steps: int = 30) -> None:
+    """Step the core (bearings of the planned ring, the odometry position a waypoint drive
+    needs) and check that what it flies is finite and bounded and its status publishable."""
+    from onboard.autopilot.base import LinkConfig, LinkCounters, StreamState
+    from onboard.autopilot.states import Saturated, TelemetryState, snapshot
+
+    _, plan = _command_fleet()
+    p, yaw = plan.p_ned, plan.yaw_rad
+    others = [j for j in range(N) if j != TARGET]
+    b, _ = bearings_body(p, yaw, [(TARGET, j) for j in others])
+    ctl, v_max = daemon.core.controller, daemon.core.config.safety.v_max_m_s
+    for k in range(steps):
+        t = t0 + 0.02 * k
+        frame = tuple(BearingMeasurement(j, tuple(b[m]), t) for m, j in enumerate(others))
+        own = OwnMeasurements(t_s=t, yaw_rad=float(yaw[TARGET]), v_body=(0.2, 0.0, 0.0),
+                              yaw_rate_rad_s=0.05, bearings=frame,
+                              position_ned=tuple(float(x) for x in p[TARGET]))  # fmt: skip
+        sp, out = daemon.core.step(t, own)
+        assert all(math.isfinite(x) for x in (*sp.v_body, sp.yaw_rate_rad_s)), sp
+        assert math.hypot(*sp.v_body) <= v_max * (1 + 1e-9)
+        for m in out:
+            encode(m)  # what it sends is finite
+    for (i, j), beta in ctl.desired.items():
+        assert abs(math.hypot(*beta) - 1.0) < 1e-6, ((i, j), beta)
+    for e, d in ctl.desired_distance.items():
+        assert math.isfinite(d) and 0.0 < d <= 4 * POSITION_MAX_M, (e, d)
+    assert 0.0 <= ctl.ramp_progress <= 1.0
+    tel = snapshot(TelemetryState(), t0, LinkConfig(), 1, StreamState.IDLE,
+                   Saturated((0.0, 0.0, 0.0), 0.0, False, False), LinkCounters())  # fmt: skip
+    status = daemon._status(t0, tel)
+    assert decode(encode(status), VehicleStatus) == status
+    assert status.formation_id == daemon._formation[0]
+    assert status.leader_drive_id == daemon._drive_id
+
+
+@st.composite
+def _command_batch(draw: st.DrawFn) -> list[tuple[str, bytes]]:
+    valid = st.sampled_from([d for datas in COMMAND_CORPUS.values() for d in datas])
+    bad = st.one_of(mutated(COMMAND_CORPUS), random_payload(COMMAND_CORPUS), collapsed(), spliced(),
+                    st.binary(max_size=40).map(lambda b: b"\x8a" + b))  # fmt: skip
+    n = draw(st.integers(1, 8))
+    # half of them valid (one_of flattens and weighs its branches alike): the adopted
+    # changes and drives interleave with the bad ones
+    datas = [draw(valid if draw(st.booleans()) else bad) for _ in range(n)]
+    topics = sorted(COMMAND_KINDS)
+    # each on its own kind's key, or (a fifth) on another kind's
+    return [
+        (topic_of(d) if draw(st.integers(0, 4)) else draw(st.sampled_from(topics)), d)
+        for d in datas
+    ]
+
+
+def topic_of(data: bytes) -> str:
+    """The key a sample's own type goes on (the command key for one that names none)."""
+    try:
+        tag = msgspec.msgpack.decode(data).get("type")
+    except (msgspec.DecodeError, AttributeError):
+        return "command"
+    return tag if tag in COMMAND_KINDS else "command"
+
+
+@settings(FUZZ, max_examples=150)
+@given(_command_batch())
+def test_random_and_mutated_commands_never_break_the_daemon_or_its_core(samples):
+    fleet, _ = _command_fleet()
+    drops = DropCounter()
+    link = _receiver(TARGET, drops)
+    daemon = AgentDaemon(fleet, TARGET, _Setpoints(), link, None, None, drops, "fuzz")
+    # it leads a scale change: the drives are taken, and the formation flown is not the file's
+    lead = COMMAND_CORPUS["command.formation"][0]
+    assert _command_outcome(daemon, link, "command.formation", lead) == "adopted"
+    outcomes = [_command_outcome(daemon, link, topic, data) for topic, data in samples]
+    assert drops.total == outcomes.count("dropped")
+    assert all(k.startswith("command_") for k in drops.snapshot()), drops.snapshot()
+    _fly_commands(daemon, 6.0)
