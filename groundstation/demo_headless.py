@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from groundstation.demo import SCALE_TOLERANCE, DemoPorts, plan_formation, write_demo_files
+from onboard.core.config import replace_fields
 from onboard.daemon.config import load_fleet
 from onboard.daemon.loop import agent_config
 from onboard.geometry import bearings_body
@@ -49,9 +50,14 @@ def headless_demo(
     rigidity: bool = True,
     progress: Callable[[float], None] | None = None,
     localization: str = "paper000",
+    core_fields: dict[str, Any] | None = None,
+    bearing_noise_rad: float = 0.0,
 ) -> tuple[dict[str, Any], Recording]:
     """Fly the demo's mission headless; returns ``(summary, recording)``. ``localization``
-    is the fleet file's ``[core] localization``."""
+    is the fleet file's ``[core] localization``; ``core_fields`` replaces flat agent-config
+    fields (:func:`onboard.core.config.replace_fields`) in every vehicle's configuration, e.g.
+    ``{"gradloc_yaw_from_bearings": True}``; ``bearing_noise_rad`` is the runner's bearing noise
+    (per tangent axis, :class:`sim.runner.RunnerConfig`; the demo's is 0)."""
     plan = plan_formation(vehicles, seed)
     with tempfile.TemporaryDirectory() as tmp:
         ports = DemoPorts(zenoh=7447, mavlink=14540, gcs=14550)  # written, never opened
@@ -67,6 +73,8 @@ def headless_demo(
             )
         )
         configs = [agent_config(fleet, i) for i in range(vehicles)]
+    if core_fields:
+        configs = [replace_fields(c, **core_fields) for c in configs]
     runner = RunnerConfig(
         duration_s=duration_s,
         dt_s=dt_s,
@@ -77,6 +85,7 @@ def headless_demo(
         tau_v_s=tau_v_s,
         tau_yaw_s=tau_yaw_s,
         camera_latency_s=camera_latency_s,
+        bearing_noise_rad=bearing_noise_rad,
     )
     rec = run(configs, plan.p_start_ned, plan.yaw_start_rad, runner, progress)
     return summarize_recording(rec, plan.p_ned, plan.yaw_rad, vehicles), rec

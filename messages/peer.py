@@ -142,11 +142,16 @@ class GradientLocalizationShare(Payload, tag="peer.gradloc"):
     """Paper 002's distributed localization state of the sender (eq. 16-17 and 22,
     :mod:`onboard.core.localization002`): its translation ``T_i`` and velocity in the shared
     estimated frame (receivers carry ``T_i`` to their own time with it), and ``lambda_ij u_ij``
-    per out-edge: what a neighbour needs for the gradient of the edges it shares with it."""
+    per out-edge: what a neighbour needs for the gradient of the edges it shares with it.
+    ``yaw_hat_rad`` is the sender's yaw-only rotation estimate ``psihat_i`` (paper 002 eq. 13-15
+    on SO(2), ``gradloc_yaw_from_bearings``; ``None`` when it flies on paper 000's filter yaw)
+    and ``yaw_rate_rad_s`` its odometry yaw rate (receivers carry ``psihat_i`` with it)."""
 
     t_ned: PositionVec3
     v_ned: SpeedVec3
     edges: _ScaledBearings
+    yaw_hat_rad: Angle | None = None
+    yaw_rate_rad_s: Rate = 0.0
 
 
 class ConsensusState(Payload, tag="peer.consensus"):

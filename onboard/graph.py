@@ -36,6 +36,28 @@ def reciprocal_pairs(edges: ArrayLike) -> IntArray:
     return np.array(pairs, dtype=np.int64).reshape(-1, 2)
 
 
+def reciprocal_components(edges: ArrayLike, n: int) -> list[list[int]]:
+    """Connected components of ``0..N-1`` under the reciprocal pairs (:func:`reciprocal_pairs`),
+    each sorted, in order of their smallest vertex. Relative yaws come from reciprocal pairs
+    only (paper 002 fig. 6), so the team's yaws are tied together exactly when this is one
+    component (paper 002: "a spanning tree of the formation control graph")."""
+    parent = list(range(n))
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in reciprocal_pairs(edges).tolist():
+        if 0 <= a < n and 0 <= b < n:
+            parent[root(a)] = root(b)
+    comps: dict[int, list[int]] = {}
+    for v in range(n):
+        comps.setdefault(root(v), []).append(v)
+    return sorted(comps.values())
+
+
 def edge_index(edges: ArrayLike) -> dict[tuple[int, int], int]:
     """Map ``(i, j) -> row`` of an edge list."""
     return {(int(a), int(b)): k for k, (a, b) in enumerate(np.asarray(edges).reshape(-1, 2))}

@@ -9,6 +9,18 @@ step, so its rate is the core's):
    :class:`messages.peer.LocalizationState`, fixed by the prior (``p_hat0_ned``,
    ``yaw_hat0_rad``). Agent ``i``'s rotation ``R_i = R_z(psihat_i)`` is the yaw of paper 000's
    filter (eq. 6; the scale layer keeps running it), so ``u_ij = R_z(psihat_i) beta_ij``.
+   With ``gradloc_yaw_from_bearings`` the layer estimates ``psihat_i`` itself instead, by
+   paper 002's yaw-only rotation estimation (eq. 13-15 on SO(2), :mod:`onboard.distributed.yaw`,
+   docs/distributed.md "Yaw-only rotations"): ``psihat_i`` starts at the prior's yaw
+   (``yaw_hat0_rad``, as paper 000's filter), is carried by the odometry yaw rate, and takes one
+   gradient round per core step of ``sum_j f_R(|wrap(psihat_j - psihat_i - psi_ij)|)`` over the
+   reciprocal edges with a relative yaw ``psi_ij`` this step (the camera layer's trackers, from
+   reciprocal bearings; :attr:`onboard.core.scale.Scale.rel`) and a fresh share of
+   ``psihat_j`` (carried to now with its yaw rate). Step ``1 / (2 b^2 deg_i)``, ``deg_i`` the
+   agent's reciprocal edges: the per-agent (Jacobi) form of the SO(3) rule
+   (:func:`onboard.distributed.rotation.rotation_lipschitz`), a descent step. The global yaw is
+   the gauge the prior fixes; an agent without reciprocal edges keeps the prior's yaw plus its
+   odometry.
 2. **Carry by odometry.** ``T_i += dt R_i v_i`` and ``lambda_ij += dt u_ij . (v_j - v_i)``
    (paper 002 is static; between rounds the vehicles fly). Neighbours' ``T_j`` are carried from
    their share's stamp to now with the velocity they shared.
@@ -57,7 +69,7 @@ from typing import Any
 import numpy as np
 
 from messages.codec import Payload
-from messages.limits import POSITION_MAX_M, SPEED_MAX_M_S
+from messages.limits import ANGLE_MAX_RAD, POSITION_MAX_M, RATE_MAX_RAD_S, SPEED_MAX_M_S
 from messages.peer import GradientLocalizationShare, ScaledBearing
 from messages.vocabulary import DropReason
 from onboard.core.bearings import Bearings, finite
@@ -70,7 +82,10 @@ from onboard.distributed.localization import (
     localization_gradients,
     localization_steps,
 )
-from onboard.distributed.reshaping import ReshapeD
+from onboard.distributed.reshaping import F_R, ReshapeD
+from onboard.distributed.rotation import rotation_lipschitz
+from onboard.distributed.yaw import yaw_gradients
+from onboard.estimation.angles import wrap_rad
 
 
 def range_edge_gradients(lam: np.ndarray, range_m: np.ndarray, f_d: ReshapeD) -> np.ndarray:
@@ -136,6 +151,13 @@ class GradientLocalization:
         self.rounds = 0
         self.range_terms = 0
         """Measured-range terms used so far (one per out-edge and step)."""
+        self.own_yaw = gains.gradloc_yaw_from_bearings
+        """Whether ``psihat_i`` is this layer's yaw-only estimate (module docstring)."""
+        self.psi_hat_rad = float(graph.yaw0(me))
+        self.h_yaw = 1.0 / rotation_lipschitz(F_R, len(scale.reciprocal))
+        """``1 / (2 b^2 deg_i)`` (module docstring)."""
+        self.yaw_rate_rad_s = 0.0
+        self.yaw_rounds = 0
 
     # ----------------------------------------------------------------- pose
     @property
@@ -145,12 +167,40 @@ class GradientLocalization:
 
     @property
     def yaw_hat_rad(self) -> float:
-        """The known rotation: paper 000's filter yaw (module docstring)."""
-        return self.scale.localization.yaw_hat_rad
+        """The known rotation: paper 000's filter yaw, or this layer's yaw-only estimate with
+        ``gradloc_yaw_from_bearings`` (module docstring)."""
+        return self.psi_hat_rad if self.own_yaw else self.scale.localization.yaw_hat_rad
+
+    def _step_yaw(self, own: Own) -> None:
+        """Carry ``psihat_i`` by the odometry, then one round of eq. 13-15 on SO(2)."""
+        t_s = own.t_s
+        w = own.yaw_rate_rad_s if abs(own.yaw_rate_rad_s) <= RATE_MAX_RAD_S else 0.0
+        self.yaw_rate_rad_s = w
+        psi = wrap_rad(self.psi_hat_rad + own.dt_s * w)
+        nbr, meas = [], []
+        for j, (psi_ij, _) in self.scale.rel.items():
+            m = self.peers.latest_fresh(GradientLocalizationShare, j, t_s)
+            if m is None or m.yaw_hat_rad is None:
+                continue
+            nbr.append(m.yaw_hat_rad + (t_s - m.stamp_s) * m.yaw_rate_rad_s)
+            meas.append(psi_ij)
+        if meas:
+            k = len(meas)
+            edges = np.c_[np.zeros(k, dtype=np.int64), np.arange(1, k + 1)]
+            g = float(yaw_gradients([psi, *nbr], edges, meas, F_R).g_src.sum())
+            psi = wrap_rad(psi - self.h_yaw * g)
+        if math.isfinite(psi):
+            self.psi_hat_rad = psi
+            self.yaw_rounds += bool(meas)
+        else:  # never let a non-finite yaw out: keep the last one
+            self._drops.count(DropReason.NONFINITE)
 
     # ----------------------------------------------------------------- inbox
     def _take(self, j: int, msg: GradientLocalizationShare) -> bool:
         if not (_within(msg.t_ned, POSITION_MAX_M) and _within(msg.v_ned, SPEED_MAX_M_S)):
+            return False
+        yaw = () if msg.yaw_hat_rad is None else (msg.yaw_hat_rad,)
+        if not (_within(yaw, ANGLE_MAX_RAD) and _within((msg.yaw_rate_rad_s,), RATE_MAX_RAD_S)):
             return False
         w: Vec3 | None = None
         for e in msg.edges:
@@ -170,6 +220,8 @@ class GradientLocalization:
     # ------------------------------------------------------------------ step
     def step(self, own: Own, outbox: list[Payload]) -> Command | None:
         t_s, dt = own.t_s, own.dt_s
+        if self.own_yaw:
+            self._step_yaw(own)
         yaw = self.yaw_hat_rad
         v_i = rotz(yaw, own.v_body)
         if not _within(v_i, SPEED_MAX_M_S):  # beyond what a share may carry: not flown on
@@ -271,7 +323,14 @@ class GradientLocalization:
             edges.append(ScaledBearing(j, (s * u[0], s * u[1], s * u[2])))
         outbox.append(
             GradientLocalizationShare(
-                sender=self.id, seq=own.seq, stamp_s=t_s, t_ned=self.t_ned, v_ned=v_i, edges=edges
+                sender=self.id,
+                seq=own.seq,
+                stamp_s=t_s,
+                t_ned=self.t_ned,
+                v_ned=v_i,
+                edges=edges,
+                yaw_hat_rad=self.psi_hat_rad if self.own_yaw else None,
+                yaw_rate_rad_s=self.yaw_rate_rad_s,
             )
         )
         return None

@@ -63,6 +63,9 @@
     localization = "paper000"         # the position estimate it flies on: paper 000's filter
                                       # (eq. 6) or "paper002", paper 002's distributed gradient
                                       # localization (eq. 16-17, 22; docs/distributed.md)
+    yaw_from_bearings = false         # "paper002" only: its rotations from paper 002's yaw-only
+                                      # estimate (eq. 13-15 on SO(2)) over the relative yaws of
+                                      # reciprocal bearings, not paper 000's filter yaw
 
     [sfm]                             # the SfM observers against a biased odometry (0: off,
                                       # paper 000's observer; onboard/core/config.py AgentConfig)
@@ -122,7 +125,8 @@ from messages.formation import Formation, FormationError, load_formation
 from messages.keys import key
 from messages.transport import ZenohSettings, check_endpoint, loopback_endpoint, with_mutual_tls
 from messages.vocabulary import FleetMode, Localization
-from onboard.graph import complete_graph, formation_edges
+from onboard.core.config import yaw_components_message
+from onboard.graph import complete_graph, formation_edges, reciprocal_components
 from onboard.rigidity.angle import weighted_angle_rigidity_eigenvalue
 from onboard.rigidity.weights import SensingModel
 
@@ -199,6 +203,13 @@ class CoreSection(msgspec.Struct, forbid_unknown_fields=True):
     """The agent core's choice of estimators (onboard/core/config.py GradientLocalizationGains)."""
 
     localization: Localization = "paper000"
+    yaw_from_bearings: bool = False
+    """``gradloc_yaw_from_bearings``: paper 002's localization flies on its own yaw-only rotation
+    estimate from reciprocal bearings instead of paper 000's filter yaw (needs "paper002")."""
+
+    def __post_init__(self) -> None:
+        if self.yaw_from_bearings and self.localization != "paper002":
+            raise ValueError("core.yaw_from_bearings needs localization = 'paper002'")
 
 
 class CameraSection(msgspec.Struct, forbid_unknown_fields=True):
@@ -469,6 +480,10 @@ def load_fleet(path: str | Path) -> Fleet:
         formation = load_formation(path.parent / config.formation)
     except FormationError as exc:
         raise ConfigError(f"{path}: formation: {exc}") from None
+    if config.core.yaw_from_bearings:
+        comps = reciprocal_components(formation_edges(formation), formation.n)
+        if len(comps) > 1:
+            raise ConfigError(f"{path}: core.yaw_from_bearings: {yaw_components_message(comps)}")
     if config.mavlink.port_stride < 1:
         raise ConfigError(
             f"{path}: mavlink.port_stride: must be >= 1, got {config.mavlink.port_stride}"

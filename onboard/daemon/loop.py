@@ -159,7 +159,9 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
     )
     return AgentConfig(graph=graph, mode=c.mode, safety=safety, scale=scale,
                        formation=formation, rigidity=rigidity,
-                       gradloc=GradientLocalizationGains(localization=c.core.localization))  # fmt: skip
+                       gradloc=GradientLocalizationGains(
+                           localization=c.core.localization,
+                           gradloc_yaw_from_bearings=c.core.yaw_from_bearings))  # fmt: skip
 
 
 def _finite_within(x: float | None, limit: float) -> bool:

@@ -13,7 +13,8 @@ is assembled by :func:`node_gradient`: agent ``i`` sums the gradients of the edg
 endpoint of, nothing else (a distributed update: its neighbours' states and the edge's measurement
 are all it reads). Discretized with step ``h``: ``x <- x - h k g`` on ``R^n``
 (:func:`euclidean_step`), ``R_i <- R_i exp(-h k hat(g_i))`` on SO(3) with ``g_i`` in body
-coordinates (:func:`so3_step`, paper 002 side panel on rotations, eq. 29). Edge constraints such
+coordinates (:func:`so3_step`, paper 002 side panel on rotations, eq. 29), and for yaws
+``psi_i <- wrap(psi_i - h k g_i)`` (:func:`so2_step`). Edge constraints such
 as ``lambda_ij >= 1`` (eq. 17) are kept by projecting after each step (:func:`project_lower`):
 the projected gradient update of eq. 17 (``lambda' = 0`` on the active constraint).
 
@@ -44,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from onboard.geometry import FloatArray, IntArray, so3_exp
+from onboard.geometry import FloatArray, IntArray, so3_exp, wrap_angle
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,14 @@ def so3_step(rot: FloatArray, grad_body: FloatArray, h_k: float) -> FloatArray:
     (paper 002 eq. 29). ``rot`` ``(N, 3, 3)``, ``grad_body`` ``(N, 3)`` in the local coordinates
     ``R exp(hat(delta))``."""
     return rot @ so3_exp(-h_k * grad_body)
+
+
+def so2_step(psi_rad: FloatArray, grad: FloatArray, h_k: float) -> FloatArray:
+    """``wrap(psi_i - h k g_i)``: :func:`so3_step` for rotations about the vertical, where
+    ``R_z(psi) exp(hat(delta e3)) = R_z(psi + delta)`` makes the exponential map an angle addition
+    (paper 002 eq. 29 on SO(2); :mod:`onboard.distributed.yaw`). ``psi_rad``, ``grad`` ``(N,)``;
+    result in ``[-pi, pi)``."""
+    return wrap_angle(psi_rad - h_k * grad)
 
 
 def project_lower(y: FloatArray, lower: float | None) -> FloatArray:

@@ -19,6 +19,7 @@ from onboard.distributed.flow import (
     momentum_weight,
     node_gradient,
     project_lower,
+    so2_step,
     so3_step,
 )
 from onboard.distributed.localization import (
@@ -29,6 +30,7 @@ from onboard.distributed.localization import (
 )
 from onboard.distributed.reshaping import F_D, F_R, ReshapeD, ReshapeR
 from onboard.distributed.rotation import rotation_costs, rotation_gradients, rotation_lipschitz
+from onboard.distributed.yaw import yaw_costs, yaw_gradients
 from onboard.geometry import FloatArray
 
 
@@ -50,6 +52,14 @@ class LocalizationResult:
 class RotationResult:
     rot: FloatArray
     """``(N, 3, 3)`` body-to-world rotations."""
+    cost: FloatArray
+    rounds: int
+
+
+@dataclass(frozen=True)
+class YawResult:
+    psi_rad: FloatArray
+    """``(N,)`` yaws in ``[-pi, pi)``."""
     cost: FloatArray
     rounds: int
 
@@ -151,3 +161,37 @@ def estimate_rotations(
         rot = so3_step(rot, g, hk)
     cost[rounds] = float(np.sum(rotation_costs(rot, e, rm, f)))
     return RotationResult(rot=rot, cost=cost[: rounds + 1], rounds=rounds)
+
+
+def estimate_yaws(
+    edges: ArrayLike,
+    psi_meas_rad: ArrayLike,
+    psi0_rad: ArrayLike,
+    rounds: int,
+    f: ReshapeR = F_R,
+    safety: float = 1.0,
+    anchor: int | None = None,
+    grad_tol: float = 0.0,
+) -> YawResult:
+    """Yaw-only rotation estimation (paper 002 eq. 13-15 on SO(2), :mod:`onboard.distributed.yaw`):
+    :func:`estimate_rotations` with ``R_z`` rotations, angle-addition steps
+    (:func:`onboard.distributed.flow.so2_step`) and the same step rule ``h k = safety / L``.
+    ``edges`` ``(E, 2)``, ``psi_meas_rad`` ``(E,)`` (``psi_j - psi_i``), ``psi0_rad`` ``(N,)``."""
+    psi = np.array(psi0_rad, dtype=float).reshape(-1)
+    e = check_edges(edges, len(psi))
+    pm = np.asarray(psi_meas_rad, dtype=float).reshape(-1)
+    hk = lipschitz_step(rotation_lipschitz(f, max_degree(e, len(psi))), safety)
+    mask = None
+    if anchor is not None:
+        mask = np.zeros(len(psi), dtype=bool)
+        mask[anchor] = True
+    cost = np.empty(rounds + 1)
+    for k in range(rounds):
+        cost[k] = float(np.sum(yaw_costs(psi, e, pm, f)))
+        g = mask_gradient(node_gradient(e, len(psi), yaw_gradients(psi, e, pm, f)), mask)
+        if grad_tol > 0 and np.abs(g).max() < grad_tol:
+            rounds = k
+            break
+        psi = so2_step(psi, g, hk)
+    cost[rounds] = float(np.sum(yaw_costs(psi, e, pm, f)))
+    return YawResult(psi_rad=psi, cost=cost[: rounds + 1], rounds=rounds)

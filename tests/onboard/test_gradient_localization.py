@@ -373,3 +373,156 @@ def test_with_a_converged_sfm_distance_both_terms_count_by_their_weights(w_measu
     t_hat = np.array([layer.p_hat_ned for layer in layers])
     assert _size_error(t_hat, P_TRUE) == pytest.approx(expected - 1.0, abs=1e-3)
     assert layers[0].lam[1] == pytest.approx(expected * d01, rel=1e-3)
+
+
+# ------------------------------------------- the yaw-only rotation estimate (eq. 13-15, SO(2))
+EDGES_R = ((0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2), (3, 0), (0, 3), (0, 2))
+"""Four reciprocal pairs (a ring) and one more bearing: every agent has a relative yaw."""
+
+
+def _yaw_team(yaw_prior: np.ndarray, own_yaw: bool):
+    """Agents whose paper 000 filter yaw (the fake's) stays at the wrong prior; the camera
+    layer's relative yaws (the fake scale's ``rel``) are exact."""
+    n = len(P_TRUE)
+    d = {e: float(np.linalg.norm(P_TRUE[e[1]] - P_TRUE[e[0]])) for e in EDGES_R}
+    layers, tables = [], []
+    for i in range(n):
+        graph = Graph(agent_id=i, n_agents=n, edges=EDGES_R,
+                      p_hat0_ned=tuple(map(tuple, P_TRUE.tolist())),
+                      yaw_hat0_rad=tuple(yaw_prior.tolist()))  # fmt: skip
+        nbrs = frozenset({j for e in EDGES_R if i in e for j in e} - {i})
+        peers = PeerTable(nbrs, 0.5, Drops())
+        recip = {j: d[(i, j)] for j in range(n) if (i, j) in d and (j, i) in d}
+        scale = _fake_scale(i, float(yaw_prior[i]), recip, converged=True)
+        scale.rel = {j: (float(YAW_TRUE[j] - YAW_TRUE[i]), (0.0, 0.0, 0.0)) for j in recip}
+        gains = GradientLocalizationGains(
+            localization="paper002", gradloc_yaw_from_bearings=own_yaw
+        )
+        layer = GradientLocalization(graph, gains, peers,
+                                     _fake_bearings(i, EDGES_R, P_TRUE, YAW_TRUE),  # type: ignore[arg-type]
+                                     scale, peers.drops)  # type: ignore[arg-type]  # fmt: skip
+        for kind, route in layer.routes.items():
+            peers.route(kind, route)
+        layers.append(layer)
+        tables.append(peers)
+    return layers, tables
+
+
+def _aligned_errors(layers) -> tuple[float, float]:
+    """Largest yaw error (deg) after the best global yaw, and the largest position error (m)
+    after that yaw and the best translation (the gauge of the estimated frame)."""
+    from onboard.distributed.yaw import yaw_error_deg
+    from onboard.geometry import rot_z
+
+    psi = np.array([layer.yaw_hat_rad for layer in layers])
+    t = np.array([layer.p_hat_ned for layer in layers])
+    d = YAW_TRUE - psi
+    g = math.atan2(np.sin(d).sum(), np.cos(d).sum())
+    a = (t - t.mean(0)) @ rot_z(g).T
+    c = P_TRUE - P_TRUE.mean(0)
+    return yaw_error_deg(psi, YAW_TRUE), float(np.linalg.norm(a - c, axis=1).max())
+
+
+def test_the_yaw_only_estimate_replaces_paper000s_yaw_and_fixes_the_positions() -> None:
+    rng = np.random.default_rng(7)
+    prior = YAW_TRUE + 0.4 + rng.uniform(-0.6, 0.6, len(YAW_TRUE))  # 34 deg off each, at most
+    own, own_tables = _yaw_team(prior, own_yaw=True)
+    borrowed, borrowed_tables = _yaw_team(prior, own_yaw=False)
+    yaw0, _ = _aligned_errors(own)
+    _fly(own, own_tables, 600)
+    _fly(borrowed, borrowed_tables, 600)
+    yaw_own, pos_own = _aligned_errors(own)
+    yaw_borrowed, pos_borrowed = _aligned_errors(borrowed)
+    assert yaw0 > 10.0 and yaw_own < 1e-6, (yaw0, yaw_own)
+    assert pos_own < 1e-3 < 0.1 < pos_borrowed, (pos_own, pos_borrowed)
+    assert yaw_borrowed == pytest.approx(yaw0)  # the fake filter yaw never moves
+    assert all(layer.yaw_rounds == 599 for layer in own)
+    assert all(not peers.drops for peers in own_tables)
+    # the gauge: the yaws' sum is the prior's (synchronous rounds, both ends of each edge)
+    s = sum(layer.yaw_hat_rad for layer in own)
+    assert abs(math.remainder(s - prior.sum(), math.tau)) < 1e-6
+
+
+def test_yaw_shares_are_bounded_and_bad_ones_dropped() -> None:
+    layers, tables = _yaw_team(YAW_TRUE.copy(), own_yaw=True)
+    layer, peers = layers[2], tables[2]
+    out: list = []
+    layer.step(_own(1), out)
+    (share,) = out
+    assert share.yaw_hat_rad == pytest.approx(YAW_TRUE[2])
+    assert decode(encode(share), PeerPayload) == share
+    # without the option nothing new goes out
+    plain, _ = _yaw_team(YAW_TRUE.copy(), own_yaw=False)
+    out = []
+    plain[2].step(_own(1), out)
+    assert out[0].yaw_hat_rad is None and plain[2].yaw_hat_rad == pytest.approx(YAW_TRUE[2])
+    peers.t_s = 0.0
+    for bad in (_share(1, yaw_hat_rad=math.nan), _share(3, yaw_rate_rad_s=math.inf),
+                _share(1, yaw_hat_rad=1e300)):  # fmt: skip
+        peers.receive(bad, 0.0)
+    assert peers.drops == {DropReason.MALFORMED: 3}
+    with pytest.raises(MessageError) as info:
+        decode(encode(_share(1, yaw_rate_rad_s=1e3)), PeerPayload)
+    assert info.value.reason == DropReason.OUT_OF_RANGE
+    # a spinning own yaw rate no share may carry is not integrated
+    fields = {f: getattr(_own(2), f) for f in _own(2).__struct_fields__}
+    before = layer.yaw_hat_rad
+    out = []
+    layer.step(Own(**{**fields, "yaw_rate_rad_s": 1e3}), out)
+    assert out[0].yaw_rate_rad_s == 0.0 and abs(layer.yaw_hat_rad - before) < 0.01
+
+
+def test_yaw_from_bearings_needs_paper002() -> None:
+    with pytest.raises(ValueError, match="paper002"):
+        GradientLocalizationGains(gradloc_yaw_from_bearings=True)
+
+
+def test_the_fleet_file_selects_the_yaw_only_estimate(tmp_path) -> None:
+    from groundstation.demo import DemoPorts, plan_formation, write_demo_files
+    from onboard.daemon.config import ConfigError, load_fleet
+    from onboard.daemon.loop import agent_config
+
+    ports = DemoPorts(zenoh=7447, mavlink=14540, gcs=14550)
+    plan = plan_formation(3, seed=0)
+    path = write_demo_files(tmp_path, plan, ports, "t", "formation-active",
+                            localization="paper002")  # fmt: skip
+    assert not agent_config(load_fleet(path), 0).gradloc.gradloc_yaw_from_bearings
+    text = path.read_text().replace('localization = "paper002"',
+                                    'localization = "paper002"\nyaw_from_bearings = true')  # fmt: skip
+    path.write_text(text)
+    core = AgentCore(agent_config(load_fleet(path), 1))
+    layer = core.gradient_localization
+    assert layer is not None and layer.own_yaw and core.pose is layer
+    path.write_text(text.replace('"paper002"', '"paper000"'))
+    with pytest.raises(ConfigError) as info:
+        load_fleet(path)
+    msg = str(info.value)
+    assert "\n" not in msg and "yaw_from_bearings" in msg, msg
+
+
+def test_the_yaw_only_estimate_is_refused_when_reciprocal_pairs_split_the_team(tmp_path) -> None:
+    """The 6-vehicle demo's graph has reciprocal pairs {0, 1}, {2, 3}, {4, 5} only: relative
+    yaws cannot tie the three pairs together (flown anyway, the yaws stayed 4.5 degrees off)."""
+    from groundstation.demo import DemoPorts, plan_formation, write_demo_files
+    from onboard.core.config import build_config
+    from onboard.daemon.config import ConfigError, load_fleet
+    from onboard.graph import reciprocal_components
+
+    plan = plan_formation(6, seed=0)
+    assert reciprocal_components(plan.edges, 6) == [[0, 1], [2, 3], [4, 5]]
+    assert reciprocal_components(EDGES, 4) == [[0, 1], [2], [3]]
+    assert reciprocal_components(EDGES_R, 4) == [[0, 1, 2, 3]]
+    ports = DemoPorts(zenoh=7447, mavlink=14540, gcs=14550)
+    path = write_demo_files(tmp_path, plan, ports, "t", "formation-active",
+                            localization="paper002")  # fmt: skip
+    path.write_text(path.read_text().replace('localization = "paper002"',
+                                             'localization = "paper002"\nyaw_from_bearings = true'))  # fmt: skip
+    with pytest.raises(ConfigError) as info:
+        load_fleet(path)
+    msg = str(info.value)
+    assert "\n" not in msg and "{0, 1} {2, 3} {4, 5}" in msg, msg
+    with pytest.raises(ValueError, match="connect the team"):
+        build_config(agent_id=0, n_agents=4, edges=EDGES, localization="paper002",
+                     gradloc_yaw_from_bearings=True)  # fmt: skip
+    build_config(agent_id=0, n_agents=4, edges=EDGES_R, localization="paper002",
+                 gradloc_yaw_from_bearings=True)  # fmt: skip
