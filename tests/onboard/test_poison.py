@@ -4,8 +4,10 @@ its estimators against well-formed poison, one defect each."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import msgspec
+import numpy as np
 
 from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
@@ -27,6 +29,8 @@ from onboard.core.config import build_config
 from onboard.daemon.bearings import SimCameraSource
 from onboard.daemon.peers import DropCounter
 from onboard.estimation.sfm_observer import predict_bearing
+from onboard.geometry import bearings_body
+from sim.world import kinematic_step
 
 TRIANGLE = ((0, 1), (1, 0), (1, 2), (2, 1), (0, 2), (2, 0))
 P0 = ((0.0, 0.0, -2.0), (2.5, 0.5, -2.6), (0.5, 2.6, -1.5))
@@ -209,3 +213,104 @@ def test_consensus_names_and_excitation_edges_are_bounded_by_the_fleet():
     )
     assert set(c.scale.lam_table) <= {(0, 1), (0, 2), (1, 2)} and (0, 2) in c.scale.lam_table
     assert c.dropped["unknown_name"] == 20_000 and c.dropped["unknown_edge"] == 20_000
+
+
+# ---------------------------------------------------------------- defect 1: one bit flip of E
+
+
+def e_state(sender: int, t_s: float, x: float, z: float) -> ConsensusState:
+    return ConsensusState(sender=sender, stamp_s=t_s, states=[ConsensusEntry("e_index", [x], [z])])
+
+
+def test_one_jumped_e_index_consensus_state_is_not_taken():
+    """bench_poison's ``d1-bitflip``: a flipped exponent turned a neighbour's converged ``E``
+    state 1e-6 into 1.0; the receiver took it, and its ``E`` stayed above ``e_low`` for 30 s.
+    A jump beyond ``E_STEP_MAX_HIGHS e_high`` is dropped; the sample after it is compared with
+    it, so a real change is followed one sample late."""
+    c = core(1)
+    c.step(1.0, own(1.0), [wire(e_state(0, 1.0, 1e-6, 2e-6))])
+    c.step(1.02, own(1.02), [wire(e_state(0, 1.02, 1.0, 2e-6))])
+    assert c.scale.cons_in["e_index"][0] == (1.0, [1e-6], [2e-6])
+    assert c.dropped["implausible_jump"] == 1
+    c.step(1.04, own(1.04), [wire(e_state(0, 1.04, 2e-6, 1e3))])  # a jump of z: dropped too
+    assert c.scale.cons_in["e_index"][0][0] == 1.0 and c.dropped["implausible_jump"] == 2
+    c.step(1.06, own(1.06), [wire(e_state(0, 1.06, 3e-6, 1e3 + 1e-3))])  # consistent: followed
+    assert c.scale.cons_in["e_index"][0] == (1.06, [3e-6], [1e3 + 1e-3])
+    c.step(1.08, own(1.08), [wire(e_state(0, 1.08, 5e-3, 1e3))])  # a real step of 5 e_high
+    assert c.scale.cons_in["e_index"][0][0] == 1.08 and c.dropped["implausible_jump"] == 2
+
+
+def _demo_team(tmp: Path) -> list[AgentCore]:
+    from groundstation.demo import DemoPorts, plan_formation, write_demo_files
+    from onboard.daemon.config import load_fleet
+    from onboard.daemon.loop import agent_config
+
+    plan = plan_formation(3, seed=1)
+    fleet = load_fleet(
+        write_demo_files(tmp, plan, DemoPorts(7447, 14540, 14550), "p", "formation-active")
+    )
+    return [AgentCore(agent_config(fleet, i)) for i in range(3)], plan
+
+
+def test_one_bit_flipped_e_state_does_not_spin_a_converged_team(tmp_path: Path):
+    """The demo's team (its fleet file; 100 Hz cores, camera every 30 ms, the simulator's
+    autopilot lags, every payload through the codec) converges, then ONE ``ConsensusState`` of
+    vehicle 1 arrives with its ``E`` state turned into 1.0. Before: the gate ``k_E`` of the
+    other two opened fully (1.0) and the team sped up to 0.64 m/s within 10 s (offline with the
+    bench's timing: ``E`` above ``e_low`` for 30 s, the 2 m/s limit for 30 s, the formation
+    11.7 -> 26.7 m); now the gate stays shut and nobody speeds up."""
+    cores, plan = _demo_team(tmp_path)
+    dt, n = 0.01, 3
+    p = [tuple(float(x) for x in r) for r in plan.p_start_ned]
+    yaw = [float(y) for y in plan.yaw_start_rad]
+    v_ned, v_body, w = [(0.0, 0.0, 0.0)] * n, [(0.0, 0.0, 0.0)] * n, [0.0] * n
+    edges = cores[0].config.graph.edges
+    inbox: list[list] = [[] for _ in range(n)]
+    newest: dict[int, bytes] = {}
+
+    def step(k: int, forged: bytes | None = None) -> float:
+        t = k * dt
+        frames = [()] * n
+        if k % 3 == 0:
+            for i in range(n):
+                out = [j for a, j in edges if a == i]
+                b, _ = bearings_body(np.asarray(p), np.asarray(yaw), [(i, j) for j in out])
+                frames[i] = tuple(BearingMeasurement(j, tuple(b[m]), t) for m, j in enumerate(out))
+        if forged is not None:
+            for r in (0, 2):
+                inbox[r].append(decode(forged, PeerPayload))
+        nxt: list[list] = [[] for _ in range(n)]
+        for i, c in enumerate(cores):
+            own_i = OwnMeasurements(t_s=t, yaw_rad=yaw[i], v_body=v_body[i],
+                                    yaw_rate_rad_s=w[i], bearings=frames[i])  # fmt: skip
+            sp, out = c.step(t, own_i, inbox[i])
+            for m in out:
+                data = encode(m)
+                if isinstance(m, ConsensusState):
+                    newest[i] = data
+                for r in range(n):
+                    if r != i:
+                        nxt[r].append(decode(data, PeerPayload))
+            p[i], yaw[i], v_ned[i], v_body[i], w[i] = kinematic_step(
+                p[i], yaw[i], v_ned[i], w[i], sp.v_body, sp.yaw_rate_rad_s, dt, dt / 0.3, dt / 0.2
+            )
+        inbox[:] = nxt
+        return max(math.hypot(*v) for v in v_ned)
+
+    k = 0
+    for k in range(4000):  # 40 s
+        step(k)
+    assert all(c.scale_converged() for c in cores)
+    raw = msgspec.msgpack.decode(newest[1])
+    raw["seq"] += 1
+    for entry in raw["states"]:
+        if entry[0] == "e_index":
+            entry[1] = [1.0]  # e.g. 9.4e-10 with exponent bit 5 flipped: 4.0; any large value
+    fastest = step(k + 1, msgspec.msgpack.encode(raw))
+    k_e = 0.0
+    for m in range(k + 2, k + 1002):  # 10 s
+        fastest = max(fastest, step(m))
+        k_e = max(k_e, *(c.k_e for c in cores))
+    assert k_e == 0.0 and fastest < 0.5, (k_e, fastest)
+    # at each receiver: the forged sample, and the real one after it (compared with it)
+    assert cores[0].dropped["implausible_jump"] == cores[2].dropped["implausible_jump"] == 2
