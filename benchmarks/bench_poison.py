@@ -837,6 +837,7 @@ def rows(results: dict[str, dict]) -> list[tuple[str, str, str]]:
             "1,495 broke all 3 daemons within 2 s",
             f"{_alive(r)}; {_gap(w)}; {_size(r)}; {_scale(w)}; non-finite estimates on "
             f"{w['nonfinite_estimates'] or 'none'}; {_top_drops(r)}; "
+            f"{_drops(r, 'core_implausible_jump')}; "
             f"phases {sorted(set(w['phases_end'].values()))}; {_fast(w)}; "
             f"alarms {sorted(r['alarms_seen'])}",
         ))  # fmt: skip

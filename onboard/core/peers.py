@@ -37,8 +37,9 @@ class Route(msgspec.Struct, frozen=True):
     this mode takes, counted as ``unknown_type`` after the checks)."""
 
     senders: frozenset[int]
-    take: Callable[[int, Any], bool] | None = None
-    """``take(sender, payload)``: False if malformed (counted, not kept)."""
+    take: Callable[[int, Any], bool | None] | None = None
+    """``take(sender, payload)``: False if malformed (counted, not kept); None if the layer
+    dropped it and counted why itself (e.g. ``implausible_jump``)."""
 
 
 class PeerTable:
@@ -81,9 +82,11 @@ class PeerTable:
         take = route.take
         if take is None:
             self.drops.count(DropReason.UNKNOWN_TYPE)
-        elif take(j, msg):
+            return
+        taken = take(j, msg)
+        if taken:
             self._latest[kind][j] = msg
-        else:
+        elif taken is not None:
             self.drops.count(DropReason.MALFORMED)
 
     def is_fresh(self, stamp_s: float, t_s: float) -> bool:
