@@ -37,9 +37,8 @@ class Route(msgspec.Struct, frozen=True):
     this mode takes, counted as ``unknown_type`` after the checks)."""
 
     senders: frozenset[int]
-    take: Callable[[int, Any], bool | None] | None = None
-    """``take(sender, payload)``: False if malformed (counted, not kept); None if the layer
-    dropped it and counted why itself (e.g. ``implausible_jump``)."""
+    take: Callable[[int, Any], bool] | None = None
+    """``take(sender, payload)``: False if malformed (counted, not kept)."""
 
 
 class PeerTable:
@@ -82,11 +81,9 @@ class PeerTable:
         take = route.take
         if take is None:
             self.drops.count(DropReason.UNKNOWN_TYPE)
-            return
-        taken = take(j, msg)
-        if taken:
+        elif take(j, msg):
             self._latest[kind][j] = msg
-        elif taken is not None:
+        else:
             self.drops.count(DropReason.MALFORMED)
 
     def is_fresh(self, stamp_s: float, t_s: float) -> bool:

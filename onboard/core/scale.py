@@ -78,17 +78,8 @@ class Pose(Protocol):
     def yaw_hat_rad(self) -> float: ...
 
 
-LOC_STEP_MAX_M = 5.0
-LOC_STEP_MAX_RAD = 0.25
-"""A neighbour's :class:`messages.peer.LocalizationState` whose position moved by more than
-:data:`LOC_STEP_MAX_M` or whose yaw moved by more than :data:`LOC_STEP_MAX_RAD` (wrapped) since
-that neighbour's previous one is not taken (``implausible_jump``); the next one, compared with
-it, is. An estimate (eq. 6) moves with its vehicle (2 m/s: 4 cm per 20 ms sample) and by its
-filter's corrections: at most 0.25 m and 0.2 rad per sample in the first 50 ms of the demo
-team, then under 0.1 m and 0.05 rad; 0.1 m and 0.023 rad per 2 ms in the paper's scenarios.
-ONE bit-flipped yaw (2.83 -> 724 rad: another angle) made its receivers' formation and yaw
-laws turn and opened the active rotation's gate: 9.3 s at up to 2 m/s, the formation 11.8 ->
-15.5 m for good (bench_poison ``d1-bitflip`` offline; +1 rad: 3 s, +0.3 rad: nothing)."""
+def _keep(j: int, msg: Any) -> bool:
+    return True
 
 
 def rotz(psi: float, v: Vec3) -> Vec3:
@@ -115,7 +106,7 @@ class Scale:
         neighbours = peers.neighbours
         self.routes = {
             MotionShare: Route(neighbours, self._take_motion),
-            LocalizationState: Route(neighbours, self._take_localization),  # the table keeps it
+            LocalizationState: Route(neighbours, _keep),  # the table keeps it
             SfmEstimate: Route(neighbours, self._take_sfm),
             ExcitationTable: Route(neighbours, self._take_excitation),
             ConsensusState: Route(neighbours, self._take_consensus),
@@ -157,7 +148,6 @@ class Scale:
         self._e_folds_in: dict[int, float] = {}  # j -> e-foldings of edge (j, self)
         self.cons_in: dict[str, dict[int, tuple[float, list[float], list[float]]]] = {}
         self._e_prev: dict[int, tuple[list[float], list[float]]] = {}  # j -> last e_index (x, z)
-        self._loc_prev: dict[int, LocalizationState] = {}  # j -> last received
         self.lam_table: dict[tuple[int, int], tuple[float, float]] = {}  # edge -> (stamp, lambda)
         # the excitation table's keys: the fleet's reciprocal edges, run by their lower id
         edges = set(graph.edges)
@@ -177,20 +167,6 @@ class Scale:
         if hist is not None:
             hist.add(msg.stamp_s, (*msg.v_body, msg.yaw_rate_rad_s, msg.yaw_rad))
         return True
-
-    def _take_localization(self, j: int, msg: LocalizationState) -> bool | None:
-        """Keep ``j``'s estimate unless it jumped (:data:`LOC_STEP_MAX_M`,
-        :data:`LOC_STEP_MAX_RAD`) from ``j``'s previous one, taken or not."""
-        prev = self._loc_prev.get(j)
-        self._loc_prev[j] = msg
-        if prev is None:
-            return True
-        turned = abs(math.remainder(msg.yaw_hat_rad - prev.yaw_hat_rad, math.tau))
-        moved = math.dist(msg.p_hat_ned, prev.p_hat_ned)
-        if turned <= LOC_STEP_MAX_RAD and moved <= LOC_STEP_MAX_M:
-            return True
-        self._drops.count(DropReason.IMPLAUSIBLE_JUMP)
-        return None
 
     def _take_sfm(self, j: int, msg: SfmEstimate) -> bool:
         for e in msg.edges:
@@ -487,9 +463,7 @@ class Scale:
             edge.resync()
             edge.last_frame_s = edge.t_s = -math.inf
             edge.window = WindowAverage(self.gains.e_window_s)
-        tables = (self.sfm_in, self._e_folds_in, self.cons_in, self.lam_table, self._e_prev,
-                  self._loc_prev)  # fmt: skip
-        for table in tables:
+        for table in (self.sfm_in, self._e_folds_in, self.cons_in, self.lam_table, self._e_prev):
             table.clear()
 
     # ---------------------------------------------------------------- status
