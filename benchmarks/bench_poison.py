@@ -16,7 +16,11 @@ Attacks (``--only``; default all):
 * ``d1-bitflip``: 1,495 codec-accepted bit-flip mutations of the team's own peer payloads
   (captured, re-stamped and re-numbered as their sender would, 1-3 random bits flipped, kept
   only if ``messages.codec.decode`` accepts them), sent within 2 s under their senders' keys.
-  Same measurements.
+  Same measurements. The corpus is captured live, so a seed does not repeat a round exactly.
+  One mechanism of lasting damage was a flipped ``e_index`` consensus state (fixed: the
+  ``implausible_jump`` gate, onboard/core/scale.py); others remain (a flipped localization yaw;
+  forged inputs that kick an SfM estimate by more than ``wander_max``, so the e-fold cap reopens
+  the active rotation for 20-50 s).
 * ``d2``: ONE sample of each peer kind vehicle 2 publishes, and ONE camera frame of vehicle
   0, stamped now + 1e6 s. Measured: the formation's size and the largest vehicle displacement
   over the watch (issue: drifting apart 8 -> 36 m in 30 s), whether ``bearings_stale`` fired,
@@ -837,6 +841,7 @@ def rows(results: dict[str, dict]) -> list[tuple[str, str, str]]:
             "1,495 broke all 3 daemons within 2 s",
             f"{_alive(r)}; {_gap(w)}; {_size(r)}; {_scale(w)}; non-finite estimates on "
             f"{w['nonfinite_estimates'] or 'none'}; {_top_drops(r)}; "
+            f"{_drops(r, 'core_implausible_jump')}; "
             f"phases {sorted(set(w['phases_end'].values()))}; {_fast(w)}; "
             f"alarms {sorted(r['alarms_seen'])}",
         ))  # fmt: skip

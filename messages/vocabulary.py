@@ -215,6 +215,9 @@ class DropReason(StrEnum):
     """Core: an SfM share for an edge it does not observe."""
     UNKNOWN_NAME = "unknown_name"
     """Core: an SfM share with a name it does not know."""
+    IMPLAUSIBLE_JUMP = "implausible_jump"
+    """Core: a neighbour's consensus state that moved further from its previous sample than a
+    consensus estimate can (``onboard.core.scale.E_STEP_MAX_HIGHS``)."""
     SFM_HOLE = "sfm_hole"
     """Core: SfM frames in a gap of the history (not used)."""
     UNKNOWN_TARGET = "unknown_target"

@@ -56,6 +56,16 @@ CONSENSUS_NAMES = frozenset({"e_index", "p_bar", "dlam_dwl", "w_l"})
 """The quantities agents run consensus on (:class:`messages.peer.ConsensusState` names): any
 other name from a neighbour is counted (``unknown_name``) and dropped, so a neighbour cannot
 grow a receiver's tables (issue 23: 45,000 names per payload took a daemon to 650 MB)."""
+E_STEP_MAX_HIGHS = 10.0
+"""A neighbour's ``e_index`` consensus state (``x`` or ``z``, paper 000 eq. 10 through the PI
+estimator of fig. 1) that moved by more than this many ``e_high`` since its previous sample is
+not taken (``implausible_jump``); the next sample, compared with that one, is. The gate
+``k_E(E)`` (eq. 16) reads ``E`` on a log scale between ``e_low`` and ``e_high``, and the PI
+estimator forgets a kick only at its slow rate (``k_i = 1``: seconds): ONE bit-flipped sample
+(``x`` 1e-9 -> 1.0) kept a converged team's ``E`` above ``e_low`` for 30 s, the active rotation
+at ``w_l_max`` and the vehicles at the 2 m/s limit, the formation 11.7 -> 26.7 -> 8.6 m
+(bench_poison ``d1-bitflip``, offline). Real steps are window averages (eq. 10) moving by at
+most 7.8e-4 per 20 ms sample in the demo team and 1.4e-4 per 2 ms in the paper's scenarios."""
 
 
 class Pose(Protocol):
@@ -137,6 +147,7 @@ class Scale:
         self.sfm_in: dict[int, tuple[float, float]] = {}  # j -> (stamp, chihat_ij)
         self._e_folds_in: dict[int, float] = {}  # j -> e-foldings of edge (j, self)
         self.cons_in: dict[str, dict[int, tuple[float, list[float], list[float]]]] = {}
+        self._e_prev: dict[int, tuple[list[float], list[float]]] = {}  # j -> last e_index (x, z)
         self.lam_table: dict[tuple[int, int], tuple[float, float]] = {}  # edge -> (stamp, lambda)
         # the excitation table's keys: the fleet's reciprocal edges, run by their lower id
         edges = set(graph.edges)
@@ -187,8 +198,23 @@ class Scale:
             if entry.name not in CONSENSUS_NAMES:
                 self._drops.count(DropReason.UNKNOWN_NAME)
                 continue
+            if entry.name == "e_index" and self._e_jumped(j, entry.x, entry.z):
+                self._drops.count(DropReason.IMPLAUSIBLE_JUMP)
+                continue
             self.cons_in.setdefault(entry.name, {})[j] = (msg.stamp_s, entry.x, entry.z)
         return True
+
+    def _e_jumped(self, j: int, x: list[float], z: list[float]) -> bool:
+        """Whether ``j``'s ``e_index`` state ``(x, z)`` moved by more than
+        :data:`E_STEP_MAX_HIGHS` ``e_high`` since ``j``'s previous sample (taken or not: a
+        single bad sample costs the one after it, never more). The first sample is taken."""
+        prev = self._e_prev.get(j)
+        self._e_prev[j] = (x, z)
+        if prev is None or len(prev[0]) != len(x) or len(prev[1]) != len(z):
+            return False
+        pairs = zip((*x, *z), (*prev[0], *prev[1]), strict=True)
+        step = max((abs(a - b) for a, b in pairs), default=0.0)
+        return step > E_STEP_MAX_HIGHS * self.gains.e_high
 
     def shared(self, name: str, t_s: float) -> list[list[float]]:
         """The neighbours' fresh shared values ``x`` of consensus quantity ``name``."""
@@ -437,7 +463,7 @@ class Scale:
             edge.resync()
             edge.last_frame_s = edge.t_s = -math.inf
             edge.window = WindowAverage(self.gains.e_window_s)
-        for table in (self.sfm_in, self._e_folds_in, self.cons_in, self.lam_table):
+        for table in (self.sfm_in, self._e_folds_in, self.cons_in, self.lam_table, self._e_prev):
             table.clear()
 
     # ---------------------------------------------------------------- status

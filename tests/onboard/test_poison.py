@@ -3,9 +3,15 @@ its estimators against well-formed poison, one defect each."""
 
 from __future__ import annotations
 
+import copy
 import math
+import tempfile
+from functools import lru_cache
+from pathlib import Path
 
 import msgspec
+import numpy as np
+import pytest
 
 from messages.agent import BearingMeasurement, OwnMeasurements
 from messages.codec import decode, encode
@@ -27,6 +33,8 @@ from onboard.core.config import build_config
 from onboard.daemon.bearings import SimCameraSource
 from onboard.daemon.peers import DropCounter
 from onboard.estimation.sfm_observer import predict_bearing
+from onboard.geometry import bearings_body
+from sim.world import kinematic_step
 
 TRIANGLE = ((0, 1), (1, 0), (1, 2), (2, 1), (0, 2), (2, 0))
 P0 = ((0.0, 0.0, -2.0), (2.5, 0.5, -2.6), (0.5, 2.6, -1.5))
@@ -209,3 +217,136 @@ def test_consensus_names_and_excitation_edges_are_bounded_by_the_fleet():
     )
     assert set(c.scale.lam_table) <= {(0, 1), (0, 2), (1, 2)} and (0, 2) in c.scale.lam_table
     assert c.dropped["unknown_name"] == 20_000 and c.dropped["unknown_edge"] == 20_000
+
+
+# ---------------------------------------------------------------- defect 1: one bit flip of E
+
+
+def e_state(sender: int, t_s: float, x: float, z: float) -> ConsensusState:
+    return ConsensusState(sender=sender, stamp_s=t_s, states=[ConsensusEntry("e_index", [x], [z])])
+
+
+def test_one_jumped_e_index_consensus_state_is_not_taken():
+    """bench_poison's ``d1-bitflip``: a flipped exponent turned a neighbour's converged ``E``
+    state 1e-6 into 1.0; the receiver took it, and its ``E`` stayed above ``e_low`` for 30 s.
+    A jump beyond ``E_STEP_MAX_HIGHS e_high`` is dropped; the sample after it is compared with
+    it, so a real change is followed one sample late."""
+    c = core(1)
+    c.step(1.0, own(1.0), [wire(e_state(0, 1.0, 1e-6, 2e-6))])
+    c.step(1.02, own(1.02), [wire(e_state(0, 1.02, 1.0, 2e-6))])
+    assert c.scale.cons_in["e_index"][0] == (1.0, [1e-6], [2e-6])
+    assert c.dropped["implausible_jump"] == 1
+    c.step(1.04, own(1.04), [wire(e_state(0, 1.04, 2e-6, 1e3))])  # a jump of z: dropped too
+    assert c.scale.cons_in["e_index"][0][0] == 1.0 and c.dropped["implausible_jump"] == 2
+    c.step(1.06, own(1.06), [wire(e_state(0, 1.06, 3e-6, 1e3 + 1e-3))])  # consistent: followed
+    assert c.scale.cons_in["e_index"][0] == (1.06, [3e-6], [1e3 + 1e-3])
+    c.step(1.08, own(1.08), [wire(e_state(0, 1.08, 5e-3, 1e3))])  # a real step of 5 e_high
+    assert c.scale.cons_in["e_index"][0][0] == 1.08 and c.dropped["implausible_jump"] == 2
+
+
+class _DemoTeam:
+    """The demo's team (its fleet file; 100 Hz cores, camera every 30 ms, the simulator's
+    autopilot lags, every payload through the codec) on a kinematic world."""
+
+    def __init__(self, tmp: Path) -> None:
+        from groundstation.demo import DemoPorts, plan_formation, write_demo_files
+        from onboard.daemon.config import load_fleet
+        from onboard.daemon.loop import agent_config
+
+        plan = plan_formation(3, seed=1)
+        ports = DemoPorts(7447, 14540, 14550)
+        fleet = load_fleet(write_demo_files(tmp, plan, ports, "p", "formation-active"))
+        self.cores = [AgentCore(agent_config(fleet, i)) for i in range(3)]
+        self.p = [tuple(float(x) for x in r) for r in plan.p_start_ned]
+        self.yaw = [float(y) for y in plan.yaw_start_rad]
+        self.v_ned, self.v_body = [(0.0, 0.0, 0.0)] * 3, [(0.0, 0.0, 0.0)] * 3
+        self.w = [0.0] * 3
+        self.inbox: list[list] = [[], [], []]
+        self.newest: dict[tuple[int, type], bytes] = {}
+        self.k = 0
+        self.held: tuple[type, int] | None = None
+        """(kind, until step): vehicle 1's real payloads of that kind do not reach 0 and 2, as
+        when a forged one came with a sequence number ahead (:mod:`onboard.daemon.replay`)."""
+
+    def step(self, forged: bytes | None = None) -> float:
+        """One 10 ms step (``forged`` reaches vehicles 0 and 2 after the real traffic); returns
+        the fastest true speed."""
+        dt, t, n = 0.01, self.k * 0.01, 3
+        edges = self.cores[0].config.graph.edges
+        frames = [()] * n
+        if self.k % 3 == 0:
+            for i in range(n):
+                out = [j for a, j in edges if a == i]
+                b, _ = bearings_body(
+                    np.asarray(self.p), np.asarray(self.yaw), [(i, j) for j in out]
+                )
+                frames[i] = tuple(BearingMeasurement(j, tuple(b[m]), t) for m, j in enumerate(out))
+        if forged is not None:
+            for r in (0, 2):
+                self.inbox[r].append(decode(forged, PeerPayload))
+        nxt: list[list] = [[] for _ in range(n)]
+        for i, c in enumerate(self.cores):
+            own_i = OwnMeasurements(t_s=t, yaw_rad=self.yaw[i], v_body=self.v_body[i],
+                                    yaw_rate_rad_s=self.w[i], bearings=frames[i])  # fmt: skip
+            sp, out = c.step(t, own_i, self.inbox[i])
+            for m in out:
+                data = encode(m)
+                self.newest[(i, type(m))] = data
+                held = self.held is not None and i == 1 and type(m) is self.held[0]
+                for r in range(n):
+                    if r != i and not (held and r != 1 and self.k < self.held[1]):  # type: ignore[index]
+                        nxt[r].append(decode(data, PeerPayload))
+            self.p[i], self.yaw[i], self.v_ned[i], self.v_body[i], self.w[i] = kinematic_step(
+                self.p[i], self.yaw[i], self.v_ned[i], self.w[i], sp.v_body, sp.yaw_rate_rad_s,
+                dt, dt / 0.3, dt / 0.2,
+            )  # fmt: skip
+        self.inbox = nxt
+        self.k += 1
+        return max(math.hypot(*v) for v in self.v_ned)
+
+    def formation_m(self) -> float:
+        """Mean true distance between two vehicles."""
+        return (
+            math.dist(*self.p[:2]) + math.dist(self.p[0], self.p[2]) + math.dist(*self.p[1:])
+        ) / 3
+
+
+@lru_cache(maxsize=1)
+def _converged_demo_team() -> _DemoTeam:
+    with tempfile.TemporaryDirectory() as tmp:
+        team = _DemoTeam(Path(tmp))
+    for _ in range(4000):  # 40 s
+        team.step()
+    assert all(c.scale_converged() for c in team.cores)
+    return team
+
+
+def _forge_e(raw: dict) -> None:
+    for entry in raw["states"]:
+        if entry[0] == "e_index":
+            entry[1] = [1.0]  # e.g. 9.4e-10 with exponent bit 5 flipped: 4.0; any large value
+
+
+def test_one_bit_flipped_e_state_does_not_spin_a_converged_team():
+    """The demo team converges, then ONE ``ConsensusState`` of vehicle 1 arrives, numbered 30
+    ahead as bench_poison's ``d1-bitflip`` numbers it (the replay window then holds the real
+    ones for 0.3 s), with its ``E`` state turned into 1.0. Before, the gate ``k_E`` of vehicles 0
+    and 2 opened fully and the team flew at the 2 m/s limit within 10 s (2.0 m/s; with the
+    bench's timing offline ``E`` stayed above ``e_low`` for 30 s and the formation went 11.7 ->
+    26.7 m). Now the gate stays shut, nobody speeds up, the formation keeps its size."""
+    kind = ConsensusState
+    team = copy.deepcopy(_converged_demo_team())
+    raw = msgspec.msgpack.decode(team.newest[(1, kind)])
+    raw["seq"] += 30  # as bench_poison numbers it: 0.3 s ahead, so the real ones are held
+    _forge_e(raw)
+    team.held = (kind, team.k + 30)
+    size = team.formation_m()
+    fastest = team.step(msgspec.msgpack.encode(raw))
+    k_e = 0.0
+    for _ in range(1000):  # 10 s
+        fastest = max(fastest, team.step())
+        k_e = max(k_e, *(c.k_e for c in team.cores))
+    assert k_e == 0.0 and fastest < 0.5, (k_e, fastest)
+    # at each receiver: the forged sample, and the real one after it (compared with it)
+    assert [team.cores[r].dropped["implausible_jump"] for r in (0, 2)] == [2, 2]
+    assert team.formation_m() == pytest.approx(size, abs=0.1)
