@@ -6,6 +6,7 @@ Each solver returns the final states and a per-round history of the total cost `
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -146,21 +147,43 @@ def estimate_rotations(
     rot = np.array(rot0, dtype=float)
     e = check_edges(edges, len(rot))
     rm = np.asarray(rel_meas, dtype=float)
-    hk = lipschitz_step(rotation_lipschitz(f, max_degree(e, len(rot))), safety)
+    rot, cost, rounds = _rotation_descent(
+        rot, e, lambda x: rotation_costs(x, e, rm, f), lambda x: rotation_gradients(x, e, rm, f),
+        so3_step, f, safety, anchor, rounds, grad_tol,
+    )  # fmt: skip
+    return RotationResult(rot=rot, cost=cost, rounds=rounds)
+
+
+def _rotation_descent(
+    x: np.ndarray,
+    e: np.ndarray,
+    costs: Callable[[np.ndarray], np.ndarray],
+    edge_gradients: Callable[[np.ndarray], np.ndarray],
+    step: Callable[[np.ndarray, np.ndarray, float], np.ndarray],
+    f: ReshapeR,
+    safety: float,
+    anchor: int | None,
+    rounds: int,
+    grad_tol: float,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The descent both rotation solvers run (eq. 13-15): ``rounds`` steps of ``step`` with
+    ``h k = safety / L``, the ``anchor`` agent held, stopping early below ``grad_tol``;
+    returns the final states, the cost before each step and after the last, and the rounds."""
+    hk = lipschitz_step(rotation_lipschitz(f, max_degree(e, len(x))), safety)
     mask = None
     if anchor is not None:
-        mask = np.zeros(len(rot), dtype=bool)
+        mask = np.zeros(len(x), dtype=bool)
         mask[anchor] = True
     cost = np.empty(rounds + 1)
     for k in range(rounds):
-        cost[k] = float(np.sum(rotation_costs(rot, e, rm, f)))
-        g = mask_gradient(node_gradient(e, len(rot), rotation_gradients(rot, e, rm, f)), mask)
+        cost[k] = float(np.sum(costs(x)))
+        g = mask_gradient(node_gradient(e, len(x), edge_gradients(x)), mask)
         if grad_tol > 0 and np.abs(g).max() < grad_tol:
             rounds = k
             break
-        rot = so3_step(rot, g, hk)
-    cost[rounds] = float(np.sum(rotation_costs(rot, e, rm, f)))
-    return RotationResult(rot=rot, cost=cost[: rounds + 1], rounds=rounds)
+        x = step(x, g, hk)
+    cost[rounds] = float(np.sum(costs(x)))
+    return x, cost[: rounds + 1], rounds
 
 
 def estimate_yaws(
@@ -180,18 +203,8 @@ def estimate_yaws(
     psi = np.array(psi0_rad, dtype=float).reshape(-1)
     e = check_edges(edges, len(psi))
     pm = np.asarray(psi_meas_rad, dtype=float).reshape(-1)
-    hk = lipschitz_step(rotation_lipschitz(f, max_degree(e, len(psi))), safety)
-    mask = None
-    if anchor is not None:
-        mask = np.zeros(len(psi), dtype=bool)
-        mask[anchor] = True
-    cost = np.empty(rounds + 1)
-    for k in range(rounds):
-        cost[k] = float(np.sum(yaw_costs(psi, e, pm, f)))
-        g = mask_gradient(node_gradient(e, len(psi), yaw_gradients(psi, e, pm, f)), mask)
-        if grad_tol > 0 and np.abs(g).max() < grad_tol:
-            rounds = k
-            break
-        psi = so2_step(psi, g, hk)
-    cost[rounds] = float(np.sum(yaw_costs(psi, e, pm, f)))
-    return YawResult(psi_rad=psi, cost=cost[: rounds + 1], rounds=rounds)
+    psi, cost, rounds = _rotation_descent(
+        psi, e, lambda x: yaw_costs(x, e, pm, f), lambda x: yaw_gradients(x, e, pm, f),
+        so2_step, f, safety, anchor, rounds, grad_tol,
+    )  # fmt: skip
+    return YawResult(psi_rad=psi, cost=cost, rounds=rounds)
