@@ -61,16 +61,16 @@ def _entry_point_report(argv: list[str], extra_env: dict[str, str]) -> dict:
     )
     env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
     env.update(extra_env)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
+    return _fresh_interpreter_json(code, env)
+
+
+def _fresh_interpreter_json(code: str, env: dict[str, str]) -> dict:
+    """Run ``code`` in a fresh interpreter on this tree; the JSON of its last line."""
+    env = {**env, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     out = subprocess.run(
-        [sys.executable, "-c", code],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    )
+        [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+        timeout=60, check=True,
+    )  # fmt: skip
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -104,12 +104,7 @@ def _dialect_report(argv: list[str]) -> dict:
         "print(json.dumps({'dialect': mavutil.mavlink.__name__, 'loaded': loaded, 'mb': mb}))\n"
     )
     env = {k: v for k, v in os.environ.items() if k not in MAVLINK_VARIABLES}
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
-    out = subprocess.run(
-        [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
-        timeout=60, check=True,
-    )  # fmt: skip
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return _fresh_interpreter_json(code, env)
 
 
 def test_the_agent_loads_one_mavlink_dialect_and_others_keep_pymavlinks_default() -> None:
