@@ -216,8 +216,11 @@ class DropReason(StrEnum):
     UNKNOWN_NAME = "unknown_name"
     """Core: an SfM share with a name it does not know."""
     IMPLAUSIBLE_JUMP = "implausible_jump"
-    """Core: a neighbour's consensus state that moved further from its previous sample than a
-    consensus estimate can (``onboard.core.scale.E_STEP_MAX_HIGHS``)."""
+    """Core: a neighbour's consensus state or localization estimate that jumped further from the
+    last one taken than an estimate moves between two samples, not (yet) confirmed by the
+    sender's next sample (:class:`onboard.core.peers.JumpGate`; limits
+    ``onboard.core.scale.E_STEP_MAX_HIGHS``, ``CONSENSUS_STEP_MAX``, ``LOC_STEP_MAX_M``,
+    ``LOC_STEP_MAX_RAD``)."""
     SFM_HOLE = "sfm_hole"
     """Core: SfM frames in a gap of the history (not used)."""
     UNKNOWN_TARGET = "unknown_target"

@@ -8,11 +8,15 @@ What is accepted becomes its sender's latest of that kind; layers read it back w
 :meth:`PeerTable.latest` / :meth:`PeerTable.fresh` instead of keeping tables of their own.
 Drops are counted by reason in :class:`Drops` (the daemon reports them, the fuzz tests read
 them).
+
+:class:`JumpGate` is the layers' common rule for a neighbour's *estimate* that jumps: held back
+until the sender's next sample confirms it (issue 23's bit-flip campaign, docs/flying.md).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+import math
+from collections.abc import Callable, Hashable, Iterator, Sequence
 from typing import Any, TypeVar
 
 import msgspec
@@ -37,8 +41,64 @@ class Route(msgspec.Struct, frozen=True):
     this mode takes, counted as ``unknown_type`` after the checks)."""
 
     senders: frozenset[int]
-    take: Callable[[int, Any], bool] | None = None
-    """``take(sender, payload)``: False if malformed (counted, not kept)."""
+    take: Callable[[int, Any], bool | None] | None = None
+    """``take(sender, payload)``: False if malformed (counted, not kept); None if the layer
+    dropped it and counted why itself (e.g. ``implausible_jump``)."""
+
+
+class JumpGate:
+    """A neighbour's estimate that jumps is taken only once its sender confirms it.
+
+    Per key (a sender and a quantity) the gate keeps the last sample it let through and at most
+    one *pending* sample. A sample within ``limits`` of the last one let through passes; one
+    that jumped further is held pending (the caller drops it, counted ``implausible_jump``) and
+    passes only if the sender's next sample agrees with it within ``limits``: a real jump is
+    followed one sample late, and ONE bad sample is never taken, however large or small the
+    limits, while the sample after it (compared with the last one let through) is not lost. The
+    limits only need to be above what an estimate moves between two consecutive samples: real
+    motion faster than that would be held back sample after sample. Components flagged in
+    ``angular`` are compared wrapped to ``[-pi, pi]``. A key's first sample, and a sample of
+    another length than the last, pass (the callers check lengths). Keys are bounded by the
+    caller (fleet ids times known quantities)."""
+
+    def __init__(self) -> None:
+        self._passed: dict[Hashable, tuple[float, ...]] = {}
+        self._pending: dict[Hashable, tuple[float, ...]] = {}
+
+    def admit(self, key: Hashable, values: Sequence[float], limits: Sequence[float],
+              angular: Sequence[bool] = ()) -> bool:  # fmt: skip
+        """Whether ``values`` may be taken (see the class docstring); ``limits`` and
+        ``angular`` per component (``angular`` may be shorter: the rest are not angles)."""
+        v = tuple(values)
+        passed = self._passed.get(key)
+        if passed is None or not _jumped(v, passed, limits, angular):
+            self._passed[key] = v
+            self._pending.pop(key, None)
+            return True
+        pending = self._pending.get(key)
+        if pending is not None and not _jumped(v, pending, limits, angular):
+            self._passed[key] = v
+            del self._pending[key]
+            return True
+        self._pending[key] = v
+        return False
+
+    def clear(self) -> None:
+        """Forget every sample (the clock went back: samples to come are compared with none)."""
+        self._passed.clear()
+        self._pending.clear()
+
+
+def _jumped(a: tuple[float, ...], b: tuple[float, ...], limits: Sequence[float],
+            angular: Sequence[bool]) -> bool:  # fmt: skip
+    """Whether any component of ``a`` is further than its limit from ``b`` (equal lengths)."""
+    if len(a) != len(b):
+        return False
+    for k, (x, y, lim) in enumerate(zip(a, b, limits, strict=True)):
+        d = math.remainder(x - y, math.tau) if k < len(angular) and angular[k] else x - y
+        if abs(d) > lim:
+            return True
+    return False
 
 
 class PeerTable:
@@ -81,9 +141,11 @@ class PeerTable:
         take = route.take
         if take is None:
             self.drops.count(DropReason.UNKNOWN_TYPE)
-        elif take(j, msg):
+            return
+        taken = take(j, msg)
+        if taken:
             self._latest[kind][j] = msg
-        else:
+        elif taken is not None:
             self.drops.count(DropReason.MALFORMED)
 
     def is_fresh(self, stamp_s: float, t_s: float) -> bool:

@@ -43,7 +43,7 @@ from onboard.control import active_scale as act
 from onboard.core.bearings import MAX_ODOMETRY_GAP_S, Bearings
 from onboard.core.config import Graph, ScaleGains
 from onboard.core.layer import Command, Own, Vec3
-from onboard.core.peers import Drops, PeerTable, Route
+from onboard.core.peers import Drops, JumpGate, PeerTable, Route
 from onboard.estimation.consensus import PIConsensus
 from onboard.estimation.localization import LocalizationFilter
 from onboard.estimation.sfm_observer import SfmEdge, WindowAverage, excitation
@@ -58,14 +58,39 @@ other name from a neighbour is counted (``unknown_name``) and dropped, so a neig
 grow a receiver's tables (issue 23: 45,000 names per payload took a daemon to 650 MB)."""
 E_STEP_MAX_HIGHS = 10.0
 """A neighbour's ``e_index`` consensus state (``x`` or ``z``, paper 000 eq. 10 through the PI
-estimator of fig. 1) that moved by more than this many ``e_high`` since its previous sample is
-not taken (``implausible_jump``); the next sample, compared with that one, is. The gate
-``k_E(E)`` (eq. 16) reads ``E`` on a log scale between ``e_low`` and ``e_high``, and the PI
-estimator forgets a kick only at its slow rate (``k_i = 1``: seconds): ONE bit-flipped sample
-(``x`` 1e-9 -> 1.0) kept a converged team's ``E`` above ``e_low`` for 30 s, the active rotation
-at ``w_l_max`` and the vehicles at the 2 m/s limit, the formation 11.7 -> 26.7 -> 8.6 m
-(bench_poison ``d1-bitflip``, offline). Real steps are window averages (eq. 10) moving by at
-most 7.8e-4 per 20 ms sample in the demo team and 1.4e-4 per 2 ms in the paper's scenarios."""
+estimator of fig. 1; docs/equations.md, "Average consensus") that moved by more than this many
+``e_high`` since the last sample taken from it waits for the next one to confirm it
+(:class:`onboard.core.peers.JumpGate`, ``implausible_jump``). The gate ``k_E(E)`` (eq. 16)
+reads ``E`` on a log scale between ``e_low`` and ``e_high``, and the PI estimator forgets a
+kick only at its slow rate (``k_i = 1``: seconds): ONE bit-flipped sample (``x`` 1e-9 -> 1.0)
+kept a converged team's ``E`` above ``e_low`` for 30 s, the active rotation at ``w_l_max`` and
+the vehicles at the 2 m/s limit, the formation 11.7 -> 26.7 -> 8.6 m (bench_poison
+``d1-bitflip``, offline). Real steps are window averages (eq. 10) moving by at most 7.8e-4 per
+20 ms sample in the demo team and 1.4e-4 per 2 ms in the paper's scenarios."""
+CONSENSUS_STEP_MAX = {"p_bar": 10.0, "dlam_dwl": 1.0, "w_l": 0.3}
+"""The same confirmation for the other consensus states (``x`` and ``z`` of each component):
+``pbar`` in m (the barycenter of eq. 14), ``d lambdabar / d w_l`` (eq. 14) and the shared
+``w_l`` in rad/s (the default bound ``w_l_max``). ONE ``pbar`` state whose integral ``z`` a
+flipped exponent made 5.5e6 put the receivers' barycenter 55 km away, decaying over tens of
+seconds: the rotation velocity ``w_l (e3 x (p - pbar))`` of eq. 13 saturated at 2 m/s as soon
+as ``k_E`` opened a little, the fast motion corrected the SfM distances by more than
+``wander_max`` (their edges un-converged, ``E`` rose by ``e_high`` per edge, ``k_E = 1``) and
+the team flew at the limit for the whole watch (bench_poison ``d1-bitflip`` offline, seed 28:
+14.3 s of 15 s, the formation 9.9 m off). Real steps per 20 ms sample in the demo team from
+its start: ``pbar`` 0.17 m, ``d lambdabar / d w_l`` 0.08, ``w_l`` 0.0065 rad/s."""
+LOC_STEP_MAX_M = 10.0
+LOC_STEP_MAX_RAD = 0.5
+"""A neighbour's :class:`messages.peer.LocalizationState` (eq. 6; docs/equations.md, "Scale
+from motion") whose position moved by more than :data:`LOC_STEP_MAX_M` (per axis) or whose
+yaw turned by more than :data:`LOC_STEP_MAX_RAD` (wrapped) since the last one taken from it
+waits for the next one to confirm it (:class:`onboard.core.peers.JumpGate`,
+``implausible_jump``). ONE bit-flipped yaw (2.83 -> 724 rad: another angle) made its
+receivers' localization, yaw alignment and formation laws turn: 9.3 s at up to 2 m/s, the
+formation 11.8 -> 15.5 m for good (offline; held 0.3 s: +1 rad 2-3 s fast, +0.3 rad and +20 m
+nothing). Real steps per 20 ms sample: 0.11 m and 0.15 rad in the demo team's first 0.1 s (the
+filter's first corrections), then 0.07 m and 0.014 rad. A fixed gate of 5 m / 0.25 rad that
+took nothing unconfirmed, comparing each sample with the previous one, rejected real samples
+on a loaded flying team (05aa96b); here a held-back real jump costs one sample."""
 
 
 class Pose(Protocol):
@@ -76,10 +101,6 @@ class Pose(Protocol):
 
     @property
     def yaw_hat_rad(self) -> float: ...
-
-
-def _keep(j: int, msg: Any) -> bool:
-    return True
 
 
 def rotz(psi: float, v: Vec3) -> Vec3:
@@ -106,7 +127,7 @@ class Scale:
         neighbours = peers.neighbours
         self.routes = {
             MotionShare: Route(neighbours, self._take_motion),
-            LocalizationState: Route(neighbours, _keep),  # the table keeps it
+            LocalizationState: Route(neighbours, self._take_localization),  # the table keeps it
             SfmEstimate: Route(neighbours, self._take_sfm),
             ExcitationTable: Route(neighbours, self._take_excitation),
             ConsensusState: Route(neighbours, self._take_consensus),
@@ -147,7 +168,7 @@ class Scale:
         self.sfm_in: dict[int, tuple[float, float]] = {}  # j -> (stamp, chihat_ij)
         self._e_folds_in: dict[int, float] = {}  # j -> e-foldings of edge (j, self)
         self.cons_in: dict[str, dict[int, tuple[float, list[float], list[float]]]] = {}
-        self._e_prev: dict[int, tuple[list[float], list[float]]] = {}  # j -> last e_index (x, z)
+        self._jumps = JumpGate()  # keys (j, consensus name) and (j, "localization")
         self.lam_table: dict[tuple[int, int], tuple[float, float]] = {}  # edge -> (stamp, lambda)
         # the excitation table's keys: the fleet's reciprocal edges, run by their lower id
         edges = set(graph.edges)
@@ -193,28 +214,32 @@ class Scale:
             self._drops.count(DropReason.FUTURE_STAMP)
         return True
 
+    def _take_localization(self, j: int, msg: LocalizationState) -> bool | None:
+        """Keep ``j``'s estimate unless it jumped (:data:`LOC_STEP_MAX_M`,
+        :data:`LOC_STEP_MAX_RAD`) and is not confirmed yet (counted ``implausible_jump``)."""
+        m, rad = LOC_STEP_MAX_M, LOC_STEP_MAX_RAD
+        values = (msg.yaw_hat_rad, *msg.p_hat_ned)
+        if self._jumps.admit((j, "localization"), values, (rad, m, m, m), (True,)):
+            return True
+        self._drops.count(DropReason.IMPLAUSIBLE_JUMP)
+        return None
+
     def _take_consensus(self, j: int, msg: ConsensusState) -> bool:
         for entry in msg.states:
             if entry.name not in CONSENSUS_NAMES:
                 self._drops.count(DropReason.UNKNOWN_NAME)
                 continue
-            if entry.name == "e_index" and self._e_jumped(j, entry.x, entry.z):
+            step_max = (
+                E_STEP_MAX_HIGHS * self.gains.e_high
+                if entry.name == "e_index"
+                else CONSENSUS_STEP_MAX[entry.name]
+            )
+            values = (*entry.x, *entry.z)
+            if not self._jumps.admit((j, entry.name), values, (step_max,) * len(values)):
                 self._drops.count(DropReason.IMPLAUSIBLE_JUMP)
                 continue
             self.cons_in.setdefault(entry.name, {})[j] = (msg.stamp_s, entry.x, entry.z)
         return True
-
-    def _e_jumped(self, j: int, x: list[float], z: list[float]) -> bool:
-        """Whether ``j``'s ``e_index`` state ``(x, z)`` moved by more than
-        :data:`E_STEP_MAX_HIGHS` ``e_high`` since ``j``'s previous sample (taken or not: a
-        single bad sample costs the one after it, never more). The first sample is taken."""
-        prev = self._e_prev.get(j)
-        self._e_prev[j] = (x, z)
-        if prev is None or len(prev[0]) != len(x) or len(prev[1]) != len(z):
-            return False
-        pairs = zip((*x, *z), (*prev[0], *prev[1]), strict=True)
-        step = max((abs(a - b) for a, b in pairs), default=0.0)
-        return step > E_STEP_MAX_HIGHS * self.gains.e_high
 
     def shared(self, name: str, t_s: float) -> list[list[float]]:
         """The neighbours' fresh shared values ``x`` of consensus quantity ``name``."""
@@ -463,8 +488,9 @@ class Scale:
             edge.resync()
             edge.last_frame_s = edge.t_s = -math.inf
             edge.window = WindowAverage(self.gains.e_window_s)
-        for table in (self.sfm_in, self._e_folds_in, self.cons_in, self.lam_table, self._e_prev):
+        for table in (self.sfm_in, self._e_folds_in, self.cons_in, self.lam_table):
             table.clear()
+        self._jumps.clear()
 
     # ---------------------------------------------------------------- status
     def scale_converged(self) -> bool:
