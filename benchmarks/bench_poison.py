@@ -17,10 +17,11 @@ Attacks (``--only``; default all):
   (captured, re-stamped and re-numbered as their sender would, 1-3 random bits flipped, kept
   only if ``messages.codec.decode`` accepts them), sent within 2 s under their senders' keys.
   Same measurements. The corpus is captured live, so a seed does not repeat a round exactly.
-  One mechanism of lasting damage was a flipped ``e_index`` consensus state (fixed: the
-  ``implausible_jump`` gate, onboard/core/scale.py); others remain (a flipped localization yaw;
-  forged inputs that kick an SfM estimate by more than ``wander_max``, so the e-fold cap reopens
-  the active rotation for 20-50 s).
+  Mechanisms of lasting damage found (fixed: a neighbour's estimate that jumps waits for its
+  sender's next sample to confirm it, ``implausible_jump``, onboard/core/peers.py JumpGate): a
+  flipped ``e_index`` consensus state; a flipped localization yaw; a flipped ``p_bar``
+  integral state (the barycenter far away) plus a small ``E`` kick, whose fast rotation
+  corrected the SfM distances by more than ``wander_max`` and reopened the active rotation.
 * ``d2``: ONE sample of each peer kind vehicle 2 publishes, and ONE camera frame of vehicle
   0, stamped now + 1e6 s. Measured: the formation's size and the largest vehicle displacement
   over the watch (issue: drifting apart 8 -> 36 m in 30 s), whether ``bearings_stale`` fired,
