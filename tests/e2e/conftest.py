@@ -32,19 +32,20 @@ def _wait_for(predicate, timeout_s: float, what: str, ev: Evaluator | None = Non
 
 @contextmanager
 def running_fleet(
-    tmp_path: Path, extra_fleet_toml: str = "", keys: Path | None = None
+    tmp_path: Path, extra_fleet_toml: str = "", keys: Path | None = None, loss: float = 0.0
 ) -> Iterator[tuple]:
     """The simulator and N daemons as processes (the demo's files, ``extra_fleet_toml``
     appended to the fleet file); yields ``(evaluator, processes, ports, agent_args, fleet)``.
 
     ``keys``: a ``bearingflock keys init`` directory inside ``tmp_path``: the fleet file's
     ``[security] dir``, the simulator's ``--keys``, and the evaluator joins Zenoh over mutual
-    TLS as the ground station."""
+    TLS as the ground station. ``loss``: the fleet file's ``[zenoh] inject_loss`` (every
+    daemon drops that fraction of the peer messages it receives)."""
     base = free_port_base(N + 2, span=60)
     ports = DemoPorts(zenoh=base, mavlink=base + 10 + N, gcs=base + 9)
     plan = plan_formation(N, seed=1)
     name = f"t{base}"
-    fleet_path = write_demo_files(tmp_path, plan, ports, name, "formation-active")
+    fleet_path = write_demo_files(tmp_path, plan, ports, name, "formation-active", loss)
     if keys is not None:
         extra_fleet_toml += f'\n[security]\ndir = "{keys.relative_to(tmp_path)}"\n'
     if extra_fleet_toml:
