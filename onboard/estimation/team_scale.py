@@ -1,7 +1,7 @@
 """One metric scale for the whole team: the SfM distances fused through the bearings' shape.
 
 Not in the papers; an experiment against issue 22 (docs/equations.md "Fused team scale").
-Bearings fix a framework's shape (bearing rigidity, docs/papers.md paper 003): in a triangle
+Bearings fix a framework's shape up to scale (angle rigidity, docs/papers.md paper 003): in a triangle
 ``(a, b, c)`` the angle at each vertex comes from that vertex's own two bearings (one camera,
 one body frame: no relative yaw needed), and by the law of sines the side opposite a vertex is
 proportional to the sine of its angle. All pairs of a rigid framework therefore share ONE
