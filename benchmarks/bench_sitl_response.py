@@ -50,6 +50,7 @@ from pymavlink import mavutil
 
 from messages import mavlink as mv
 from messages.codec import MessageError, decode
+from messages.peer import BearingShare, SfmEstimate
 from messages.sim import Truth
 from sim.dynamics import step_metrics
 
@@ -327,7 +328,10 @@ def team_run(
     telemetry: dict[int, dict[str, list]] = {i: {"lpn": [], "att": []} for i in range(n)}
     statuses: list[tuple[float, int, bool, dict]] = []
     truth: list[tuple[float, ...]] = []
+    sfm_rows: list[tuple[float, ...]] = []  # stamp, sender, peer, chihat, excitation, e_folds
+    bearing_rows: list[tuple[float, ...]] = []  # stamp, sender, target, beta_body (3)
     truth_sub = None
+    peer_subs: list[Any] = []
     try:
         sim_args = simulator_args(n, "ardupilot", out, ports, fleet, seed, dynamics=dynamics)
         procs.start("sim", [*sim_args, *extra])
@@ -362,6 +366,28 @@ def team_run(
                           tr.yaw_rate_rad_s))  # fmt: skip
 
         truth_sub = ev.session.declare_subscriber(f"bf/{fleet}/*/truth", on_truth)
+
+        def on_sfm(sample: Any) -> None:
+            try:
+                m = decode(sample.payload.to_bytes(), SfmEstimate)
+            except MessageError:
+                return
+            for e in m.edges:
+                sfm_rows.append((m.stamp_s, m.sender, e.peer, e.chi_hat_inv_m, e.excitation,
+                                 e.e_folds))  # fmt: skip
+
+        def on_bearings(sample: Any) -> None:
+            try:
+                m = decode(sample.payload.to_bytes(), BearingShare)
+            except MessageError:
+                return
+            for b in m.bearings:
+                bearing_rows.append((m.stamp_s, m.sender, b.target, *b.beta_body))
+
+        peer_subs = [
+            ev.session.declare_subscriber(f"bf/{fleet}/*/peer/sfm", on_sfm),
+            ev.session.declare_subscriber(f"bf/{fleet}/*/peer/bearings", on_bearings),
+        ]
         t0 = None
         t_first = None
         asked = 0.0
@@ -378,7 +404,7 @@ def team_run(
                         gcs.send_command_long(sysid, mv.CMD_SET_MESSAGE_INTERVAL, (msg_id, 2e4))
             for k, st in ev.snapshot().items():
                 statuses.append((st.stamp_s, k, st.agent.scale_converged,
-                                 dict(st.agent.chi_hat_inv_m)))  # fmt: skip
+                                 dict(st.agent.chi_hat_inv_m), tuple(st.agent.p_hat_ned)))  # fmt: skip
             if not ev.series.t_s:
                 continue
             now = ev.series.t_s[-1]
@@ -397,12 +423,19 @@ def team_run(
         if ev is not None:
             if truth_sub is not None:
                 truth_sub.undeclare()
+            for sub in peer_subs:
+                sub.undeclare()
+            status_rows = [
+                (stamp, k, conv, *(chis.get(j, np.nan) for j in range(n)), *p_hat)
+                for stamp, k, conv, chis, p_hat in statuses
+            ]
             series = ev.series
             np.savez_compressed(
                 out / f"team_{autopilot}.npz", t_s=np.array(series.t_s),
                 p_ned=np.array(series.p_ned), scale_error=np.array(series.scale_error),
                 flying=np.array(series.flying), pairs=ev.pairs,
-                truth=np.array(truth),
+                truth=np.array(truth), sfm=np.array(sfm_rows), bearings=np.array(bearing_rows),
+                statuses=np.array(status_rows, dtype=float),
                 **{f"lpn{k}": np.array(v["lpn"]) for k, v in telemetry.items()},
                 **{f"att{k}": np.array(v["att"]) for k, v in telemetry.items()},
             )  # fmt: skip
@@ -446,7 +479,7 @@ def team_metrics(
     # the convergence flag against the error: statuses claiming convergence while off > 3 %
     p = np.array(s.p_ned)
     claimed, wrong = 0, 0
-    for stamp, k, converged, chis in statuses:
+    for stamp, k, converged, chis, _p_hat in statuses:
         if not converged or stamp < start + 10.0:
             continue
         idx = int(np.argmin(np.abs(t - stamp)))

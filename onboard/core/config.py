@@ -101,6 +101,11 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
     observer). Not in the paper; an experiment (issue 22, docs/sim.md)."""
     sfm_bias_max_m_s: float = 0.1
     """Largest relative velocity bias an SfM observer may estimate."""
+    sfm_team_scale: bool = False
+    """Report and use every reciprocal pair's distance on ONE team scale: the SfM distances
+    fused through the shape the bearings fix (:mod:`onboard.estimation.team_scale`,
+    docs/equations.md "Fused team scale"; False: each edge's own SfM estimate, paper 000). Not
+    in the paper; an experiment (issue 22)."""
     chi_min_inv_m: float = 0.02
     """SfM estimates below this (distance above 50 m) are not used as virtual measurements."""
     # localization (eq. 6)

@@ -29,6 +29,7 @@ from typing import Any, Protocol
 from messages.codec import Payload
 from messages.limits import STAMP_FUTURE_MAX_S
 from messages.peer import (
+    BearingShare,
     ConsensusEntry,
     ConsensusState,
     EdgeExcitation,
@@ -47,6 +48,7 @@ from onboard.core.peers import Drops, JumpGate, PeerTable, Route
 from onboard.estimation.consensus import PIConsensus
 from onboard.estimation.localization import LocalizationFilter
 from onboard.estimation.sfm_observer import SfmEdge, WindowAverage, excitation
+from onboard.estimation.team_scale import fused_distances, triangle_log_shape, vertex_angle
 from onboard.estimation.time_alignment import SignalHistory, step_times
 
 MAX_SFM_STEP_S = 0.01
@@ -91,6 +93,11 @@ nothing). Real steps per 20 ms sample: 0.11 m and 0.15 rad in the demo team's fi
 filter's first corrections), then 0.07 m and 0.014 rad. A fixed gate of 5 m / 0.25 rad that
 took nothing unconfirmed, comparing each sample with the previous one, rejected real samples
 on a loaded flying team (05aa96b); here a held-back real jump costs one sample."""
+
+
+TEAM_SCALE_WEIGHT_FLOOR = 1e-3
+"""Added to each edge's excitation ``lambda`` (m^2/s^2) as its weight in the fused team scale
+(:mod:`onboard.estimation.team_scale`): a team at rest still has a scale, every edge's vote."""
 
 
 class Pose(Protocol):
@@ -177,6 +184,10 @@ class Scale:
         self._cons_out: list[ConsensusEntry] = []
         self.rel: dict[int, tuple[float, Vec3]] = {}
         """Reciprocal edge ``j`` -> ``(psi_ij, u_ij)`` of this step (eq. 7)."""
+        self.team_chi: dict[int, float] = {}
+        """Reciprocal neighbour -> inverse distance on the fused team scale (``[sfm]
+        team_scale``), recomputed at each own camera frame; empty when off or undetermined."""
+        self._team_chi_s = -math.inf
         self.lambda_bar = 0.0
         self.e_index = 0.0
         self.dlam_dwl = 0.0
@@ -288,6 +299,8 @@ class Scale:
                     ],
                 )
             )
+        if self.gains.sfm_team_scale and self.bearings.new_frames:
+            self._fuse_team_scale(t_s)
         self._cons_out = []
         self._localize(own)
         self._run_consensus(own, outbox)
@@ -341,11 +354,67 @@ class Scale:
             edge.step(s, ds, u_ij, mine[3])
         return True
 
+    def _fuse_team_scale(self, t_s: float) -> None:
+        """Every reciprocal pair's distance on one team scale (:func:`fused_distances`,
+        docs/equations.md "Fused team scale"): the SfM distances this agent runs or receives
+        (:class:`messages.peer.SfmEstimate`, every edge its neighbours run), weighted by their
+        excitation, through the triangles whose three vertex angles are known (own bearings,
+        the neighbours' fresh :class:`messages.peer.BearingShare`)."""
+        peers, me = self.peers, self.id
+        chi_min, timeout = self.gains.chi_min_inv_m, peers.timeout_s
+        dist: dict[tuple[int, int], float] = {}
+        weight: dict[tuple[int, int], float] = {}
+        for j, edge in self.sfm.items():
+            c = edge.chi_at(t_s, timeout)
+            if c >= chi_min:
+                dist[(me, j)] = 1.0 / c
+                weight[(me, j)] = edge.excitation + TEAM_SCALE_WEIGHT_FLOOR
+        seen: dict[int, dict[int, tuple[float, float, float]]] = {}
+        own = {
+            k: b for k, (stamp, b) in self.bearings.beta_out.items() if peers.is_fresh(stamp, t_s)
+        }
+        seen[me] = own
+        for j, msg in peers.fresh(SfmEstimate, t_s):
+            for e in msg.edges:
+                pair = (j, e.peer)
+                if pair in self.known_edges and e.chi_hat_inv_m >= chi_min:
+                    dist[pair] = 1.0 / e.chi_hat_inv_m
+                    weight[pair] = max(e.excitation, 0.0) + TEAM_SCALE_WEIGHT_FLOOR
+        for j, bmsg in peers.fresh(BearingShare, t_s):
+            seen[j] = {b.target: b.beta_body for b in bmsg.bearings}
+        pairs = sorted(self.known_edges)
+        known = self.known_edges
+        triangles = []
+        for a, b in pairs:
+            for c in range(b + 1, self.n_agents):
+                if (a, c) not in known or (b, c) not in known:
+                    continue
+                try:
+                    angles = (
+                        vertex_angle(seen[a][b], seen[a][c]),
+                        vertex_angle(seen[b][a], seen[b][c]),
+                        vertex_angle(seen[c][a], seen[c][b]),
+                    )
+                except KeyError:
+                    continue
+                shape = triangle_log_shape(angles)
+                if shape is not None:  # sides opposite a, b, c: (b, c), (a, c), (a, b)
+                    triangles.append((((b, c), (a, c), (a, b)), shape))
+        fused = fused_distances(pairs, dist, weight, triangles)
+        self.team_chi = {
+            (e[1] if e[0] == me else e[0]): 1.0 / d for e, d in fused.items() if me in e and d > 0
+        }
+        self._team_chi_s = t_s
+
     def chi_hat(self, j: int) -> float | None:
-        """Inverse-distance estimate on reciprocal edge ``(self, j)`` now: an own observer's carried
-        to the core's time (:meth:`SfmEdge.chi_at`), a received one as its sender carried it,
-        while it is fresh (``peer_timeout_s``: a silent neighbour's last estimate is not kept)."""
+        """Inverse-distance estimate on reciprocal edge ``(self, j)`` now: with ``[sfm]
+        team_scale``, the fused team scale's (:meth:`_fuse_team_scale`) while it is fresh;
+        otherwise an own observer's carried to the core's time (:meth:`SfmEdge.chi_at`), a
+        received one as its sender carried it, while it is fresh (``peer_timeout_s``: a silent
+        neighbour's last estimate is not kept)."""
         t = self.peers.t_s or 0.0
+        if j in self.team_chi and self.peers.is_fresh(self._team_chi_s, t):
+            return self.team_chi[j]
         if j in self.sfm:
             return self.sfm[j].chi_at(t, self.peers.timeout_s)
         m = self.sfm_in.get(j)
@@ -491,6 +560,8 @@ class Scale:
         for table in (self.sfm_in, self._e_folds_in, self.cons_in, self.lam_table):
             table.clear()
         self._jumps.clear()
+        self.team_chi = {}
+        self._team_chi_s = -math.inf
 
     # ---------------------------------------------------------------- status
     def scale_converged(self) -> bool:

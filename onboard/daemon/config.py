@@ -77,6 +77,9 @@
                                       # bias with this gain, 1/s^2 (0: off; an experiment,
                                       # docs/equations.md)
     bias_max_m_s = 0.1                # ... at most this large
+    team_scale = false                # every pair's distance on one team scale: the SfM
+                                      # distances fused through the bearings' shape (an
+                                      # experiment, docs/equations.md "Fused team scale")
     warmup_s = 5.0                    # no rigidity action for this long after the core starts,
                                       # while angle localization and the eigen-estimate converge
     eigen = "distributed"             # lambda from the distributed subspace iteration, or
@@ -197,6 +200,7 @@ class SfmSection(msgspec.Struct, forbid_unknown_fields=True):
     folds_forget_s: float = 0.0
     bias_gain: float = 0.0
     bias_max_m_s: float = 0.1
+    team_scale: bool = False
 
 
 class CoreSection(msgspec.Struct, forbid_unknown_fields=True):

@@ -153,6 +153,7 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
         sfm_folds_forget_s=c.sfm.folds_forget_s,
         sfm_bias_gain=c.sfm.bias_gain,
         sfm_bias_max_m_s=c.sfm.bias_max_m_s,
+        sfm_team_scale=c.sfm.team_scale,
     )
     safety = Safety(
         v_max_m_s=c.limits.max_speed_m_s, yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s

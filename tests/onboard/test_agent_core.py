@@ -60,8 +60,8 @@ def _own(t, p, yaw, v, w, i, offset=0.0):
     )
 
 
-def _run_team(duration, mode="active"):
-    cores = [AgentCore(c) for c in _configs(mode)]
+def _run_team(duration, mode="active", **kw):
+    cores = [AgentCore(c) for c in _configs(mode, **kw)]
     p, yaw = P0.copy(), YAW0.copy()
     v = np.zeros((3, 3))
     w = np.zeros(3)
@@ -110,6 +110,32 @@ def test_team_estimates_distances_and_shares_them():
             assert decode(encode(msg), PeerPayload) == msg
     status = cores[0].status()
     assert set(status.chi_hat_inv_m) == {1, 2} and status.neighbours == [1, 2]
+
+
+def test_team_scale_reports_every_pair_on_one_scale():
+    """``[sfm] team_scale`` (docs/equations.md "Fused team scale"): the status reports distances
+    whose ratios are the bearings' shape (law of sines), the scale the SfM edges' fused one;
+    each edge's own estimate, still shared in ``SfmEstimate``, keeps its own error."""
+    cores, p, _ = _run_team(3.0, sfm_team_scale=True)
+    d = {(a, b): float(np.linalg.norm(p[b] - p[a])) for a, b in ((0, 1), (0, 2), (1, 2))}
+    for i, core in enumerate(cores):
+        chi = core.status().chi_hat_inv_m
+        others = [j for j in range(3) if j != i]
+        assert set(chi) == set(others)
+        j, k = others
+        ratio = chi[k] / chi[j]  # = d_ij / d_ik
+        assert ratio == pytest.approx(d[tuple(sorted((i, j)))] / d[tuple(sorted((i, k)))], rel=2e-3)
+        for j in others:
+            assert 1.0 / chi[j] == pytest.approx(d[tuple(sorted((i, j)))], rel=0.05)
+    # one edge's own observer 10 % off: the team scale moves by about a third of it, on every pair
+    scale = cores[0].scale
+    t = scale.peers.t_s
+    scale.sfm[1].chi_hat /= 1.10
+    scale._fuse_team_scale(t)
+    chi = cores[0].status().chi_hat_inv_m
+    for j in (1, 2):
+        assert 1.0 / chi[j] / d[(0, j)] - 1.0 == pytest.approx(0.10 / 3, abs=0.01)
+    assert 1.0 / scale.sfm[1].chi_at(t, 0.5) / d[(0, 1)] - 1.0 == pytest.approx(0.10, abs=0.01)
 
 
 def test_bad_input_is_counted_not_fatal():

@@ -135,7 +135,7 @@ PAPER_DEFAULTS = {
 """The flat configuration's defaults before it was split into groups (issue 21)."""
 ADDED_DEFAULTS = {"localization": "paper000", "gradloc_range_weight": 1.0,
                   "gradloc_measured_range_weight": 1.0, "gradloc_yaw_from_bearings": False,
-                  "sfm_bias_gain": 0.0, "sfm_bias_max_m_s": 0.1,
+                  "sfm_bias_gain": 0.0, "sfm_bias_max_m_s": 0.1, "sfm_team_scale": False,
                   "change_ramp_s": 3.0, "distance_weight": 0.25,
                   "distance_delta_m": 2.0}  # fmt: skip
 """Fields added since, each off by default (issue 25: paper 002's localization and its yaw-only
