@@ -31,7 +31,6 @@ from onboard.core.bearings import MAX_ODOMETRY_GAP_S
 from onboard.core.config import AgentConfig, replace_fields
 from onboard.estimation.localization import MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S
 from onboard.graph import normalize_edges, reciprocal_pairs
-from onboard.seeded import standard_normal
 from sim import team_kernel
 from sim.runner import Recording, RunnerConfig
 
@@ -180,7 +179,7 @@ def run_compiled(
     u_cmd = np.zeros((n, 3))
     if cfg.mode == "active":
         for me in range(n):
-            d = standard_normal((cfg.graph.seed, me, 500), 3)  # as onboard.core.motion.Active
+            d = np.random.default_rng(cfg.graph.seed * 1000 + me + 500).standard_normal(3)
             u_cmd[me] = speed * d / np.linalg.norm(d)
     rand_z, rand_noise = (
         _random_motion_noise(cfg, n_steps)

@@ -65,7 +65,6 @@ from onboard.estimation.round_consensus import (
 from onboard.estimation.star_rigidity import Star, star, weighted_degree, weighted_matvec
 from onboard.geometry import FloatArray, IntArray
 from onboard.rigidity.weights import SensingModel
-from onboard.seeded import standard_normal
 
 N_TRIVIAL = 7
 _TRIU_T = np.triu_indices(N_TRIVIAL)
@@ -307,8 +306,8 @@ class DistributedEigenEstimator:
     ) -> DistributedEigenEstimator:
         """A random unit-size start (seeded per agent)."""
         g = gains or EigenGains()
-        v = standard_normal((seed, agent_id, 31), (3, g.columns))  # no numpy.random (6.8 MB)
-        return cls(v=v, gains=g, seed=seed * 7919 + agent_id)
+        rng = np.random.default_rng([seed, agent_id, 31])
+        return cls(v=rng.standard_normal((3, g.columns)), gains=g, seed=seed * 7919 + agent_id)
 
     def share(self) -> tuple[FloatArray, FloatArray]:
         """The consensus state ``(x, z)`` to send (empty before the first round)."""
@@ -354,7 +353,7 @@ class DistributedEigenEstimator:
             # diverging (e.g. a step too large for a spectrum that jumped): restart from a
             # fresh direction rather than feed the controller garbage
             self.restarts += 1
-            v_new = standard_normal((self.seed, self.restarts), (3, k))
+            v_new = np.random.default_rng([self.seed, self.restarts]).standard_normal((3, k))
             self.x, self.z = None, None
         self.v = v_new
 

@@ -105,20 +105,3 @@ def test_lean_entry_point_leaves_out_the_ground_station_sim_pydantic_and_rich(
     # the same check sees them through bearingflock's full command line
     full = _started_daemon_packages(["groundstation.cli", "agent"], tmp_path / "missing.toml")
     assert {"groundstation", "sim"} <= set(full)
-
-
-def test_a_core_in_the_demos_mode_starts_without_numpy_random() -> None:
-    """numpy.random (6.8 MB) was loaded by two seeded draws at start (onboard/seeded.py)."""
-    code = (
-        "import json, sys\n"
-        "from onboard.core.agent import AgentCore\n"
-        "from onboard.core.config import build_config\n"
-        "from onboard.estimation.distributed_eigen import DistributedEigenEstimator\n"
-        "edges = ((0, 1), (1, 0), (1, 2), (2, 1), (0, 2), (2, 0))\n"
-        "desired = tuple((i, j, (1.0, 0.0, 0.0)) for i, j in edges)\n"
-        "AgentCore(build_config(agent_id=0, n_agents=3, edges=edges, mode='formation-active',\n"
-        "                       desired_beta_body=desired))\n"
-        "DistributedEigenEstimator.start(0, 1)\n"
-        "print(json.dumps('numpy.random' in sys.modules))\n"
-    )
-    assert _fresh_interpreter_json(code) is False
