@@ -50,11 +50,13 @@ WARMUP_S = 5.0
 
 
 def _daemons() -> list[psutil.Process]:
-    """This process's daemon children (``... groundstation.cli agent --id I ...``)."""
+    """This process's daemon children: ``... -m onboard.daemon --id I ...`` (the demo's lean
+    entry point) or ``... groundstation.cli agent --id I ...`` (a checkout from before it)."""
     found = []
     for p in psutil.Process().children(recursive=True):
         try:
-            if "agent" in p.cmdline() and "--id" in p.cmdline():
+            cmd = p.cmdline()
+            if "--id" in cmd and ("agent" in cmd or "onboard.daemon" in cmd):
                 found.append(p)
         except psutil.Error:
             continue

@@ -612,7 +612,7 @@ def run_demo(
         for i in range(vehicles):
             procs.start(
                 f"agent{i}",
-                ["-m", "groundstation.cli", "agent", "--id", str(i), "--config", str(fleet_path),
+                ["-m", "onboard.daemon", "--id", str(i), "--config", str(fleet_path),
                  "--bearings", bearings, *agent_camera_args],
             )  # fmt: skip
         zsettings = ZenohSettings(

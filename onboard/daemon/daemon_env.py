@@ -16,7 +16,8 @@ the user set always wins.
   ``ardupilotmega`` alone (which includes ``common``: every message PX4, ArduPilot and the
   simulator send a daemon; ``tests/onboard/test_daemon_env.py`` measures both). The daemon
   asks for :data:`MAVLINK_VARIABLES` and, unless the user chose MAVLink 1 ``all``, blocks
-  the one unused import (:func:`block_unused_imports`; ``mavutil`` imports it inside ``try``).
+  the one unused import (:func:`block_unused_imports`; ``mavutil`` imports it inside ``try``),
+  and ``curses``, which ``mavutil`` also tries (:data:`CURSES`).
 
 No numpy or pymavlink here: this module must be importable before either is.
 """
@@ -36,6 +37,11 @@ it; every supported autopilot speaks it), and the dialect the daemon parses with
 PYINSTALLER_DIALECT = "pymavlink.dialects.v10.all"
 """The module ``mavutil`` imports for PyInstaller's sake and the daemon never uses."""
 
+CURSES = "curses"
+"""Imported by ``pymavlink.mavutil`` inside ``try`` for ``is_printable``, whose fallback without
+it is the same test (ASCII 32-126); 0.55 MB resident with ``_curses`` and libtinfo. Nothing
+else a daemon runs uses a terminal library."""
+
 DAEMON_SUBCOMMAND = "agent"
 
 
@@ -50,12 +56,12 @@ def daemon_env_defaults(args: Sequence[str], environ: Mapping[str, str]) -> dict
 
 
 def blocked_imports(environ: Mapping[str, str]) -> tuple[str, ...]:
-    """Modules the daemon need not load: :data:`PYINSTALLER_DIALECT`, unless ``environ`` (the
-    daemon's, with :func:`daemon_env_defaults` applied) makes that very module the dialect:
-    MAVLink 1 (no ``MAVLINK20``) and ``MAVLINK_DIALECT`` unset or ``all``."""
+    """Modules the daemon need not load: :data:`CURSES`, and :data:`PYINSTALLER_DIALECT` unless
+    ``environ`` (the daemon's, with :func:`daemon_env_defaults` applied) makes that very module
+    the dialect: MAVLink 1 (no ``MAVLINK20``) and ``MAVLINK_DIALECT`` unset or ``all``."""
     if environ.get("MAVLINK_DIALECT", "all") == "all" and "MAVLINK20" not in environ:
-        return ()
-    return (PYINSTALLER_DIALECT,)
+        return (CURSES,)
+    return (PYINSTALLER_DIALECT, CURSES)
 
 
 def block_unused_imports(environ: Mapping[str, str], modules: MutableMapping[str, Any]) -> None:

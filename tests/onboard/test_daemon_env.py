@@ -10,6 +10,7 @@ from pathlib import Path
 
 from onboard.daemon.daemon_env import (
     BLAS_THREAD_VARIABLES,
+    CURSES,
     MAVLINK_VARIABLES,
     PYINSTALLER_DIALECT,
     blocked_imports,
@@ -40,10 +41,25 @@ def test_other_subcommands_keep_every_core_and_dialect() -> None:
 
 
 def test_the_pyinstaller_dialect_is_blocked_unless_it_is_the_dialect() -> None:
-    assert blocked_imports(MAVLINK_VARIABLES) == (PYINSTALLER_DIALECT,)
-    assert blocked_imports({"MAVLINK20": "1"}) == (PYINSTALLER_DIALECT,)  # v2 "all"
-    assert blocked_imports({}) == ()  # mavutil's default: MAVLink 1 "all", that very module
-    assert blocked_imports({"MAVLINK_DIALECT": "all"}) == ()
+    assert blocked_imports(MAVLINK_VARIABLES) == (PYINSTALLER_DIALECT, CURSES)
+    assert blocked_imports({"MAVLINK20": "1"}) == (PYINSTALLER_DIALECT, CURSES)  # v2 "all"
+    assert blocked_imports({}) == (CURSES,)  # mavutil's default: MAVLink 1 "all", that module
+    assert blocked_imports({"MAVLINK_DIALECT": "all"}) == (CURSES,)
+
+
+def test_pymavlink_without_curses_finds_the_same_printable_characters() -> None:
+    """mavutil's ``is_printable`` falls back to ASCII 32-126 without curses (blocked)."""
+    code = (
+        "import json, sys\n"
+        "sys.modules['curses'] = None\n"
+        "from pymavlink import mavutil\n"
+        "print(json.dumps([mavutil.have_ascii, [c for c in range(256) if mavutil.is_printable(c)]]))\n"
+    )
+    have_ascii, printable = _fresh_interpreter_json(code, dict(os.environ))
+    from curses import ascii
+
+    assert have_ascii is False
+    assert printable == [c for c in range(256) if ascii.isprint(c)]
 
 
 def _entry_point_report(argv: list[str], extra_env: dict[str, str]) -> dict:

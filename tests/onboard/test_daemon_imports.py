@@ -1,10 +1,14 @@
 """The daemon's import path stays lean (issue 27, resident memory <= 70 MB per daemon).
 
-A daemon is ``python -m groundstation.cli agent``: the command line module, then the modules
-``onboard.daemon.cli._run_agent`` imports unconditionally (read from its source, so the test
-follows the code) and the pymavlink link it opens with simulator bearings. None of that may
-pull in SciPy (about 27 MB resident), OpenCV (only with a camera), numba or matplotlib. Checked
-in a fresh interpreter: ``sys.modules`` of the test process says nothing about a daemon's.
+A daemon is ``python -m groundstation.cli agent`` (``bearingflock agent``) or, as the demo
+starts it, ``python -m onboard.daemon`` (``onboard/daemon/entry.py``): the command line module,
+then the modules ``onboard.daemon.cli._run_agent`` imports unconditionally (read from its
+source, so the test follows the code) and the pymavlink link it opens with simulator bearings.
+None of that may pull in SciPy (about 27 MB resident), OpenCV (only with a camera), numba or
+matplotlib. The lean entry point, run for real up to the fleet file, must in addition leave out
+the rest of the toolkit's command line (``groundstation``, ``sim``), pydantic (typer's option
+coercion) and rich (typer's help and errors): 51 against 65 MB of imports. Checked in a fresh
+interpreter: ``sys.modules`` of the test process says nothing about a daemon's.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 HEAVY = ("scipy", "cv2", "numba", "matplotlib")
+NOT_ON_A_VEHICLE = ("groundstation", "sim", "pydantic", "pydantic_core", "rich")
+"""Packages the lean entry point leaves out: the ground station's and simulator's commands."""
 
 
 def run_agent_imports() -> list[str]:
@@ -51,6 +57,11 @@ def test_daemon_import_path_has_no_heavy_modules() -> None:
         "    importlib.import_module(m)\n"
         f"print(json.dumps([h for h in {HEAVY!r} if h in sys.modules]))\n"
     )
+    assert _fresh_interpreter_json(code) == []
+
+
+def _fresh_interpreter_json(code: str) -> object:
+    """Run ``code`` in a fresh interpreter on this tree; the JSON of its last line."""
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
@@ -64,4 +75,33 @@ def test_daemon_import_path_has_no_heavy_modules() -> None:
         timeout=60,
         check=True,
     )
-    assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _started_daemon_packages(entry: list[str], missing: Path) -> list[str]:
+    """In a fresh interpreter: run the entry point ``entry`` (``python -m ENTRY``) as a daemon
+    of a fleet file that does not exist, which gets through parsing and the daemon's imports
+    and exits 2 at the fleet file; then the pymavlink link and Zenoh, which it opens next.
+    The top-level packages of :data:`HEAVY` and :data:`NOT_ON_A_VEHICLE` then loaded."""
+    code = (
+        "import json, runpy, sys\n"
+        f"sys.argv = ['x', *{entry[1:]!r}, '--id', '0', '--config', {str(missing)!r}]\n"
+        "try:\n"
+        f"    runpy.run_module({entry[0]!r}, run_name='__main__', alter_sys=True)\n"
+        "except SystemExit as exc:\n"
+        "    assert exc.code == 2, exc.code\n"
+        "import onboard.autopilot.pymavlink_link, zenoh\n"
+        "top = {m.split('.')[0] for m, v in sys.modules.items() if v is not None}\n"
+        f"print(json.dumps(sorted(top & set({(*HEAVY, *NOT_ON_A_VEHICLE)!r}))))\n"
+    )
+    return _fresh_interpreter_json(code)  # type: ignore[return-value]
+
+
+def test_lean_entry_point_leaves_out_the_ground_station_sim_pydantic_and_rich(
+    tmp_path: Path,
+) -> None:
+    lean = _started_daemon_packages(["onboard.daemon"], tmp_path / "missing.toml")
+    assert lean == []
+    # the same check sees them through bearingflock's full command line
+    full = _started_daemon_packages(["groundstation.cli", "agent"], tmp_path / "missing.toml")
+    assert {"groundstation", "sim"} <= set(full)
