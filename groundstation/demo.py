@@ -277,7 +277,9 @@ class Evaluator:
         self.truth: dict[int, Truth] = {}
         self._truth_hist: dict[int, deque[Truth]] = {}
         """Each vehicle's recent truth (:data:`TRUTH_HISTORY_S`): a status is scored against
-        the truth at its own stamp (:func:`truth_at`)."""
+        the truth as it was when the status was stamped (:func:`truth_at`): its age on its own
+        vehicle's clock, taken back from each vehicle's newest truth, so SITL instances whose
+        clocks differ are compared at one moment."""
         self.bad_samples = 0
         self.alarms_seen: dict[str, set[int]] = {}
         """Every alarm any daemon reported during the run, with the vehicles that did."""
@@ -338,7 +340,13 @@ class Evaluator:
             st = status.get(int(i))
             chi = st.agent.chi_hat_inv_m.get(int(j)) if st is not None else None
             if chi and st is not None:
-                at = [truth_at(hist.get(int(k), []), st.stamp_s) for k in (i, j)]
+                # the status's age on its own vehicle's clock (SITL instances each have one)
+                own = hist.get(int(i), [])
+                age_s = own[-1].stamp_s - st.stamp_s if own else math.nan
+                at = [
+                    truth_at(h, h[-1].stamp_s - age_s) if (h := hist.get(int(k), [])) else None
+                    for k in (i, j)
+                ]
                 pi, pj = (p[i], p[j]) if at[0] is None or at[1] is None else at
                 d = float(np.linalg.norm(pj - pi))
                 errors[m] = abs(1.0 / chi - d) / d
