@@ -36,10 +36,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import datetime
 import json
 import math
-import os
 import random
 import re
 import signal
@@ -448,12 +446,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=2000.0, help="malformed samples per s")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
-    os.environ["PYTHONPATH"] = os.pathsep.join(
-        [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
-    )
-    os.chdir(ROOT)
-    print(f"tree {ROOT} ({bp._git_head()}); load average {os.getloadavg()[0]:.2f}; "
-          f"{datetime.date.today()}", flush=True)  # fmt: skip
+    bp.run_this_tree()
     run = {
         "malformed": lambda: part_malformed(args.seed, ISSUE_MALFORMED, args.rate, 10.0),
         "mavlink-fuzz": lambda: part_mavlink_fuzz(args.seed, ISSUE_FRAMES, 10_000.0, 5.0),

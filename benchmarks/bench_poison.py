@@ -929,12 +929,7 @@ def main(argv: list[str] | None = None) -> int:
     from messages import limits
 
     assert limits.LIST_MAX == LIST_MAX, limits.LIST_MAX
-    os.environ["PYTHONPATH"] = os.pathsep.join(
-        [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
-    )
-    os.chdir(ROOT)  # the processes run this tree too (``python -m`` puts the cwd first)
-    print(f"tree {ROOT} ({_git_head()}); load average {os.getloadavg()[0]:.2f}; "
-          f"{datetime.date.today()}", flush=True)  # fmt: skip
+    run_this_tree()
     results: dict[str, dict] = {}
     for name in args.only or list(ATTACKS):
         print(f"{name} ...", flush=True)
@@ -951,6 +946,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=str))
     return 1 if len(ok) < len(results) else 0
+
+
+def run_this_tree() -> None:
+    """Have the processes a bench starts run this tree (first on ``PYTHONPATH``, and the cwd:
+    ``python -m`` puts it first), and print which tree, the load and the date."""
+    os.environ["PYTHONPATH"] = os.pathsep.join(
+        [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
+    )
+    os.chdir(ROOT)
+    print(f"tree {ROOT} ({_git_head()}); load average {os.getloadavg()[0]:.2f}; "
+          f"{datetime.date.today()}", flush=True)  # fmt: skip
 
 
 def _git_head() -> str:
