@@ -2,9 +2,11 @@
 
 Agents share no frame, but on a reciprocal edge ``iR_j beta_ji = -beta_ij`` gives
 ``psi_ij = psi_j - psi_i`` directly (:func:`onboard.geometry.relative_yaw`, paper 002 fig. 6),
-provided the bearings are not vertical. Camera frames are only 50 Hz and reach the neighbour
-late, so each agent pairs frames by capture stamp and turns every pair into an *offset*
-between the two vehicles' own odometry yaws:
+provided the bearings are not vertical. Camera frames are only 30-50 Hz, reach the neighbour
+late, and the two cameras are not synchronized (nor, exactly, the two clocks: real SITL
+instances differ by 10-20 ms), so each agent pairs frames by capture stamp, interpolating the
+other side's bearing and yaw between its two frames around the stamp (:func:`sample_at`), and
+turns every pair into an *offset* between the two vehicles' own odometry yaws:
 
     offset_ij = relative_yaw(beta_ij, beta_ji) - (yaw_j - yaw_i)      (both at the same stamp),
 
@@ -29,8 +31,14 @@ FILTER_GAIN = 0.2
 """Weight of a new pair in the circular low-pass filter of the offset (1 = no filtering)."""
 STAMP_TOLERANCE_S = 0.005
 """Largest stamp difference of an own and a peer frame that still make a pair."""
+MAX_INTERPOLATION_GAP_S = 0.1
+"""Longest interval between two frames of one side across which its bearing and yaw are
+interpolated to the other side's stamp (three frames at 30 Hz: a dropped frame or two)."""
 PAIR_HISTORY = 16
 """Frames of each side kept for pairing."""
+
+Sample = tuple[float, float, Vec3]
+"""One frame of one side: ``(stamp_s, odometry yaw_rad, unit bearing to the other side)``."""
 
 
 def yaw_offset(beta_ij: Vec3, beta_ji: Vec3, yaw_i_rad: float, yaw_j_rad: float) -> float:
@@ -43,6 +51,41 @@ def yaw_offset(beta_ij: Vec3, beta_ji: Vec3, yaw_i_rad: float, yaw_j_rad: float)
         math.atan2(-beta_ij[1], -beta_ij[0]) - math.atan2(beta_ji[1], beta_ji[0]) + math.pi
     ) % math.tau - math.pi
     return wrap_rad(psi_ij - (yaw_j_rad - yaw_i_rad))
+
+
+def sample_at(
+    samples: deque[Sample],
+    t_s: float,
+    tolerance_s: float = STAMP_TOLERANCE_S,
+    max_gap_s: float = MAX_INTERPOLATION_GAP_S,
+) -> Sample | None:
+    """One side's frame at stamp ``t_s``: its frame within ``tolerance_s`` of ``t_s`` if there
+    is one, else the two frames around ``t_s`` (at most ``max_gap_s`` apart) interpolated
+    linearly (the yaw on the circle, the bearing renormalized); ``None`` when ``t_s`` is outside
+    ``samples`` (oldest first) or in a longer gap.
+
+    Between frames 33 ms apart the interpolation error of a bearing turning at ``w`` rad/s
+    with angular acceleration ``a`` is at most ``a dt^2 / 8``: far below the camera noise for
+    a formation's motion, where taking the nearest frame instead would err by ``w dt / 2``."""
+    before = after = None
+    for s in samples:
+        if s[0] <= t_s:
+            before = s
+        else:
+            after = s
+            break
+    near = [s for s in (before, after) if s is not None and abs(s[0] - t_s) <= tolerance_s]
+    if near:
+        return min(near, key=lambda s: abs(s[0] - t_s))
+    if before is None or after is None or after[0] - before[0] > max_gap_s:
+        return None
+    w = (t_s - before[0]) / (after[0] - before[0])
+    yaw = before[1] + w * math.remainder(after[1] - before[1], math.tau)
+    b = tuple(x + w * (y - x) for x, y in zip(before[2], after[2], strict=True))
+    norm = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    if not norm > 0.0:
+        return None
+    return t_s, yaw, (b[0] / norm, b[1] / norm, b[2] / norm)
 
 
 def relative_yaw_now(yaw_i_rad: float, yaw_j_rad: float, offset_rad: float) -> float:
@@ -83,9 +126,10 @@ class RelativeYawEdge:
     gain: float = FILTER_GAIN
     """Weight of a new pair in the circular low-pass filter of the offset (1 = no filtering)."""
     stamp_tolerance_s: float = STAMP_TOLERANCE_S
+    max_gap_s: float = MAX_INTERPOLATION_GAP_S
     history: int = PAIR_HISTORY
-    _own: deque[tuple[float, float, Vec3]] = field(default_factory=deque)
-    _peer: deque[tuple[float, float, Vec3]] = field(default_factory=deque)
+    _own: deque[Sample] = field(default_factory=deque)
+    _peer: deque[Sample] = field(default_factory=deque)
     _cos: float = 0.0
     _sin: float = 0.0
     offset_rad: float | None = None
@@ -104,24 +148,33 @@ class RelativeYawEdge:
         return relative_yaw_now(yaw_i_rad, yaw_j_rad, self.offset_rad)
 
     def _add(
-        self,
-        mine: deque[tuple[float, float, Vec3]],
-        sample: tuple[float, float, Vec3],
-        other: deque[tuple[float, float, Vec3]],
-        own_first: bool,
+        self, mine: deque[Sample], sample: Sample, other: deque[Sample], own_first: bool
     ) -> None:
+        """Keep ``sample`` and pair it with the other side at its stamp (:func:`sample_at`),
+        and pair the other side's frames that ``sample`` now brackets: frames of either side
+        arrive in any order and late, and each frame is paired once, when its pair is known."""
         if mine and sample[0] <= mine[-1][0]:
             return
+        prev_s = mine[-1][0] if mine else None
         mine.append(sample)
         if len(mine) > self.history:
             mine.popleft()
-        match = min(other, key=lambda s: abs(s[0] - sample[0]), default=None)
-        if match is None or abs(match[0] - sample[0]) > self.stamp_tolerance_s:
+        match = sample_at(other, sample[0], self.stamp_tolerance_s, self.max_gap_s)
+        if match is not None:
+            self._pair(sample, match, own_first)
+        if prev_s is None:
             return
-        own, peer = (sample, match) if own_first else (match, sample)
-        if not is_usable_pair(own[2], peer[2]):
-            return
-        self._update(yaw_offset(own[2], peer[2], own[1], peer[1]))
+        tol = self.stamp_tolerance_s
+        for theirs in other:  # bracketed only now, and not matched to either frame by stamp
+            if prev_s + tol < theirs[0] < sample[0] - tol:
+                ours = sample_at(mine, theirs[0], tol, self.max_gap_s)
+                if ours is not None:
+                    self._pair(ours, theirs, own_first)
+
+    def _pair(self, mine: Sample, theirs: Sample, own_first: bool) -> None:
+        own, peer = (mine, theirs) if own_first else (theirs, mine)
+        if is_usable_pair(own[2], peer[2]):
+            self._update(yaw_offset(own[2], peer[2], own[1], peer[1]))
 
     def _update(self, offset: float) -> None:
         self._cos, self._sin, self.offset_rad = filter_offset(

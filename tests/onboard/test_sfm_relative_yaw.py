@@ -73,3 +73,52 @@ def test_unmatched_or_vertical_pairs_are_ignored():
     edge.add_own(1.0, 0.0, (0.0, 0.0, 1.0))
     edge.add_peer(1.0, 0.0, (0.0, 0.0, -1.0))  # vertical: undefined
     assert edge.offset_rad is None and edge.pairs == 0
+
+
+def _moving(t):
+    """Two vehicles crossing and turning: positions (2, 3) and yaws (2,) at time ``t``."""
+    p = np.array([[0.3 * t, 0.0, -2.0], [2.5, 1.0 - 0.4 * t, -2.4]])
+    return p, np.array([0.2 + 0.5 * t, -1.0 - 0.3 * t])
+
+
+@pytest.mark.parametrize("late_frames", [0, 3])
+def test_unsynchronized_cameras_pair_by_interpolation(late_frames):
+    """Real cameras are not synchronized and SITL instances' clocks differ by 10-20 ms: the
+    peer's frames fall between the own ones (here 13.7 ms after them, at 30 Hz), never within
+    the 5 ms of a stamp match. Interpolated, every peer frame still makes a pair, whether it
+    arrives at once or ``late_frames`` own frames later, and the relative yaw is right to well
+    under a camera's noise (~1 mrad)."""
+    off_i, off_j = 0.7, -2.2
+    edge = RelativeYawEdge(gain=1.0)
+    worst = 0.0
+    in_flight: list[tuple[float, float, tuple]] = []
+    for k in range(60):
+        t_own, t_peer = k / 30.0, k / 30.0 + 0.0137
+        p, yaw = _moving(t_own)
+        edge.add_own(t_own, yaw[0] + off_i, _pair(p, yaw)[0])
+        p, yaw = _moving(t_peer)
+        in_flight.append((t_peer, yaw[1] + off_j, _pair(p, yaw)[1]))
+        if len(in_flight) > late_frames:
+            edge.add_peer(*in_flight.pop(0))
+        if edge.offset_rad is not None:
+            psi = edge.psi(yaw[0] + off_i, yaw[1] + off_j)
+            worst = max(worst, abs(math.remainder(psi - (yaw[1] - yaw[0]), math.tau)))
+    assert edge.pairs >= 58 - late_frames
+    assert worst < 2e-4
+
+
+def test_sample_at_takes_a_near_frame_interpolates_or_refuses():
+    from collections import deque
+
+    from onboard.estimation.relative_yaw import sample_at
+
+    s = deque(
+        [(0.0, 3.1, (1.0, 0.0, 0.0)), (0.1, -3.1, (0.0, 1.0, 0.0)), (0.5, 0.0, (1.0, 0.0, 0.0))]
+    )
+    assert sample_at(s, 0.003) == s[0]  # within the stamp tolerance: the frame itself
+    t, yaw, b = sample_at(s, 0.05)
+    assert t == 0.05
+    assert yaw == pytest.approx(math.pi, abs=1e-12) or yaw == pytest.approx(-math.pi, abs=1e-12)
+    assert b == pytest.approx((math.sqrt(0.5), math.sqrt(0.5), 0.0))  # renormalized
+    assert sample_at(s, 0.3) is None  # frames 0.4 s apart: a gap, not interpolated
+    assert sample_at(s, -0.1) is None and sample_at(s, 0.6) is None  # outside the frames
