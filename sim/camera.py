@@ -40,6 +40,11 @@ class CameraConfig:
     """Probability that a visible vehicle is missed in one frame."""
     rate_hz: float = 30.0
     seed: int = 0
+    unsynchronized: bool = False
+    """Each vehicle's camera runs at its own phase (drawn from ``seed``, uniform over a frame
+    period) instead of every camera at the same instant: real cameras on different vehicles
+    are not synchronized, so an own frame and a neighbour's never share a stamp (the realistic
+    dynamics turn it on)."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.fov_deg <= 360.0:
@@ -122,35 +127,56 @@ class CameraPublisher:
         self.ids = ids
         self.publish_truth = publish_truth
         self.rng = np.random.default_rng(config.seed)
-        self.next_t_s = 0.0
-        self.seq = 0
+        self.next_t_s: FloatArray | None = None
+        """Each vehicle's next frame time (set at the first tick, when the team is known)."""
+        self.seqs: list[int] = []
         self.published = 0
 
+    @property
+    def seq(self) -> int:
+        """Frames published so far by the camera that published most."""
+        return max(self.seqs, default=0)
+
     def __call__(self, t_s: float, world: World) -> None:
-        if t_s + 1e-9 < self.next_t_s:
+        period = 1.0 / self.config.rate_hz
+        if self.next_t_s is None:
+            self.seqs = [0] * world.n
+            self.next_t_s = np.zeros(world.n)
+            if self.config.unsynchronized:
+                phase = np.random.default_rng([self.config.seed, 71]).uniform(0.0, period, world.n)
+                self.next_t_s = t_s + phase
+        due = t_s + 1e-9 >= self.next_t_s
+        if not due.any():
             return
-        self.next_t_s = max(self.next_t_s + 1.0 / self.config.rate_hz, t_s)
-        for key, payload in self.frame(t_s, world):
+        self.next_t_s[due] = np.maximum(self.next_t_s[due] + period, t_s)
+        for key, payload in self.frame(t_s, world, due):
             self.put(key, encode(payload))
             self.published += 1
-        self.seq += 1
+        for i in np.flatnonzero(due):
+            self.seqs[i] += 1
 
-    def frame(self, t_s: float, world: World) -> list[tuple[str, CameraBearings | Truth]]:
-        """All payloads of one camera frame at time ``t_s`` (key, payload)."""
+    def frame(
+        self, t_s: float, world: World, due: np.ndarray | None = None
+    ) -> list[tuple[str, CameraBearings | Truth]]:
+        """The payloads of one camera frame at time ``t_s`` (key, payload) of every vehicle,
+        or of the vehicles where ``due`` (bool ``(N,)``) is set."""
         cfg = self.config
         ids = self.ids if self.ids is not None else list(range(world.n))
+        seqs = self.seqs or [0] * world.n
         edges, beta, _ = visible_bearings(world.p_ned, world.yaw_rad, cfg.fov_deg, cfg.range_m)
         keep, beta = perturb_bearings(beta, cfg.noise_std_rad, cfg.dropout, self.rng)
         edges, beta = edges[keep], beta[keep]
         out: list[tuple[str, CameraBearings | Truth]] = []
         for i in range(world.n):
+            if due is not None and not due[i]:
+                continue
             rows = edges[:, 0] == i
             out.append(
                 (
                     camera_key(self.fleet, ids[i]),
                     CameraBearings(
                         sender=ids[i],
-                        seq=self.seq,
+                        seq=seqs[i],
                         stamp_s=t_s,
                         targets=[ids[j] for j in edges[rows, 1]],
                         beta_body=[tuple(b) for b in beta[rows].tolist()],
@@ -163,7 +189,7 @@ class CameraPublisher:
                         truth_key(self.fleet, ids[i]),
                         Truth(
                             sender=ids[i],
-                            seq=self.seq,
+                            seq=seqs[i],
                             stamp_s=t_s,
                             p_ned=tuple(world.p_ned[i].tolist()),
                             v_ned=tuple(world.v_ned[i].tolist()),

@@ -32,7 +32,7 @@ def sim(
         typer.Option(
             help="ideal: the kinematic first-order lag, exact telemetry (paper reproductions); "
             "realistic: tilt-to-accelerate, delay, overshoot, hover wander, EKF-like velocity "
-            "noise and bias, fitted to ArduCopter SITL (docs/sim.md)."
+            "noise and bias, unsynchronized cameras, fitted to ArduCopter SITL (docs/sim.md)."
         ),
     ] = "ideal",
     lockstep: Annotated[
@@ -262,8 +262,9 @@ def sim(
             realistic=RealisticConfig(seed=seed) if dynamics == "realistic" else None,
         )
         camera = CameraConfig(
-            camera_fov, camera_range, camera_noise, camera_dropout, camera_rate, seed
-        )
+            camera_fov, camera_range, camera_noise, camera_dropout, camera_rate, seed,
+            unsynchronized=dynamics == "realistic",
+        )  # fmt: skip
         rig = _render_rig(render_camera, markers, render_rate, render_blur, render_noise,
                           render_encoding, render_quality, seed)  # fmt: skip
         server = SimServer(config)

@@ -94,3 +94,31 @@ def test_bad_camera_config():
     for kwargs in ({"fov_deg": 0.0}, {"range_m": -1.0}, {"dropout": 1.5}, {"rate_hz": 0.0}):
         with pytest.raises(ValueError):
             CameraConfig(**kwargs)
+
+
+def test_unsynchronized_cameras_keep_their_rate_at_their_own_phase():
+    """With ``unsynchronized`` each vehicle's frames come at the camera rate at its own phase
+    (seeded): the stamps of two vehicles differ, and the same seed gives the same phases."""
+
+    def stamps(seed: int) -> dict[str, list[float]]:
+        w = World(np.array([[0.0, 0.0, -5.0], [4.0, 0.0, -5.0], [0.0, 4.0, -5.0]]), [0.0] * 3)
+        got: dict[str, list[float]] = {}
+        cfg = CameraConfig(rate_hz=30.0, seed=seed, unsynchronized=True)
+        pub = CameraPublisher(cfg, "alpha", lambda k, b: got.setdefault(k, []).append(b))
+        for _ in range(300):
+            w.step(0.01)
+            pub(w.t_s, w)
+        return {
+            k: [decode(b, CameraBearings).stamp_s for b in v]
+            for k, v in got.items()
+            if k.endswith("camera/bearings")
+        }
+
+    s = stamps(5)
+    assert len(s) == 3
+    for v in s.values():
+        assert len(v) == pytest.approx(90, abs=2)  # 30 Hz of 3 s
+        assert np.all(np.diff(v) > 0.0)
+    firsts = sorted(v[0] for v in s.values())
+    assert firsts[-1] - firsts[0] > 0.005  # not one shutter for the team
+    assert stamps(5) == s
