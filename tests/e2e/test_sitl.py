@@ -177,7 +177,13 @@ def test_demo_mission_on_three_sitl_vehicles(sitl_binary, tmp_path):
     """The whole demo on real firmware: 3 ArduCopter SITL vehicles and 3 daemons take off,
     fly the mission in GUIDED on body velocity and yaw rate, and land. The estimates' accuracy
     on SITL is measured by ``benchmarks/bench_sitl_response.py --part team`` (``docs/sim.md``:
-    1-3 % median, not yet within 3 % everywhere): here they must exist and be finite."""
+    1-3 % median, not yet within 3 % everywhere); here every pair's distance estimate must
+    have left its start and be near the truth in the mission's last 10 s: median under 5 %,
+    worst under 10 %. (Before the relative yaw paired unsynchronized frames, most SITL edges
+    never started when the instances' clocks were more than 5 ms apart: 36-53 % off for the
+    whole mission, issue 22. Whether they are depends on the boots, so the deterministic
+    regression test is ``tests/e2e/test_demo_realistic.py``, whose cameras run at seeded
+    phases: 75 % median error on the old code.)"""
     from groundstation.demo import run_demo
 
     summary = run_demo(
@@ -206,3 +212,6 @@ def test_demo_mission_on_three_sitl_vehicles(sitl_binary, tmp_path):
     assert path_m.min() > SITL_HOVER_SPEED_P90_M_S * flown_s, (path_m, flown_s)
     errors = series["scale_error"][flying]
     assert np.isfinite(errors[-10:]).all(), errors[-10:]
+    t_flying = series["t_s"][flying]
+    last = errors[t_flying >= t_flying[-1] - 10.0]  # (samples, pairs), fractions
+    assert np.median(last) < 0.05 and last.max(axis=0).max() < 0.10, last.max(axis=0)
