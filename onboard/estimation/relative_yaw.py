@@ -58,11 +58,16 @@ def sample_at(
     t_s: float,
     tolerance_s: float = STAMP_TOLERANCE_S,
     max_gap_s: float = MAX_INTERPOLATION_GAP_S,
+    counterpart: deque[Sample] | None = None,
 ) -> Sample | None:
     """One side's frame at stamp ``t_s``: its frame within ``tolerance_s`` of ``t_s`` if there
     is one, else the two frames around ``t_s`` (at most ``max_gap_s`` apart) interpolated
     linearly (the yaw on the circle, the bearing renormalized); ``None`` when ``t_s`` is outside
-    ``samples`` (oldest first) or in a longer gap.
+    ``samples`` (oldest first) or in a longer gap, and when the two frames around it each
+    have a frame of ``counterpart`` (the side ``t_s`` comes from) within ``tolerance_s``: the
+    two cameras are then synchronized, and a frame without a counterpart at its stamp is one
+    whose counterpart was lost or not seen (as the compiled engine, :mod:`sim.team_kernel`,
+    pairs them).
 
     Between frames 33 ms apart the interpolation error of a bearing turning at ``w`` rad/s
     with angular acceleration ``a`` is at most ``a dt^2 / 8``: far below the camera noise for
@@ -78,6 +83,10 @@ def sample_at(
     if near:
         return min(near, key=lambda s: abs(s[0] - t_s))
     if before is None or after is None or after[0] - before[0] > max_gap_s:
+        return None
+    if counterpart is not None and all(
+        any(abs(c[0] - s[0]) <= tolerance_s for c in counterpart) for s in (before, after)
+    ):
         return None
     w = (t_s - before[0]) / (after[0] - before[0])
     yaw = before[1] + w * math.remainder(after[1] - before[1], math.tau)
@@ -159,15 +168,15 @@ class RelativeYawEdge:
         mine.append(sample)
         if len(mine) > self.history:
             mine.popleft()
-        match = sample_at(other, sample[0], self.stamp_tolerance_s, self.max_gap_s)
+        tol, gap_s = self.stamp_tolerance_s, self.max_gap_s
+        match = sample_at(other, sample[0], tol, gap_s, mine)
         if match is not None:
             self._pair(sample, match, own_first)
         if prev_s is None:
             return
-        tol = self.stamp_tolerance_s
         for theirs in other:  # bracketed only now, and not matched to either frame by stamp
             if prev_s + tol < theirs[0] < sample[0] - tol:
-                ours = sample_at(mine, theirs[0], tol, self.max_gap_s)
+                ours = sample_at(mine, theirs[0], tol, gap_s, other)
                 if ours is not None:
                     self._pair(ours, theirs, own_first)
 

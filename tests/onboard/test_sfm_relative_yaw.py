@@ -122,3 +122,19 @@ def test_sample_at_takes_a_near_frame_interpolates_or_refuses():
     assert b == pytest.approx((math.sqrt(0.5), math.sqrt(0.5), 0.0))  # renormalized
     assert sample_at(s, 0.3) is None  # frames 0.4 s apart: a gap, not interpolated
     assert sample_at(s, -0.1) is None and sample_at(s, 0.6) is None  # outside the frames
+
+
+def test_synchronized_cameras_do_not_interpolate_over_a_lost_frame():
+    """Frames with equal stamps (one shutter, the headless runner's): a peer frame that was
+    lost leaves its own frame unpaired, as the compiled engine does, instead of being
+    interpolated from the peer's frames around it."""
+    edge = RelativeYawEdge(gain=1.0)
+    lost = {3, 7}
+    for k in range(12):
+        t = k / 50.0
+        p, yaw = _moving(t)
+        b_ij, b_ji = _pair(p, yaw)
+        edge.add_own(t, yaw[0], b_ij)
+        if k not in lost:
+            edge.add_peer(t, yaw[1], b_ji)
+    assert edge.pairs == 12 - len(lost)
