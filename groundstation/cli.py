@@ -21,13 +21,13 @@ os.environ.update(daemon_env_defaults(sys.argv[1:], os.environ))  # agent: one B
 
 import typer
 
+from groundstation.agent_cli import agent_command
 from groundstation.check_cli import check
 from groundstation.demo_cli import demo
 from groundstation.gcs_cli import gcs_app
 from groundstation.keys_cli import keys_app
 from groundstation.plan_cli import plan
 from groundstation.vision_cli import vision_app
-from onboard.daemon.cli import agent
 from sim.cli import sim
 from sim.scenario_cli import scenario
 from sim.sweep.cli import sweep
@@ -39,7 +39,7 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-app.command("agent")(agent)
+app.command("agent")(agent_command)
 app.command("check")(check)
 app.command("demo")(demo)
 app.command("plan")(plan)

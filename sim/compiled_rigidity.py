@@ -31,6 +31,7 @@ from onboard.core.config import AgentConfig, replace_fields
 from onboard.geometry import FloatArray, rot_z
 from onboard.graph import complete_graph, normalize_edges, reciprocal_pairs
 from onboard.rigidity.weights import SensingModel
+from onboard.seeded import eigen_restart_block, eigen_start_block
 from sim import rigidity_kernel as rk
 from sim.runner import Recording, RunnerConfig
 
@@ -169,14 +170,13 @@ def run_compiled_rigidity_team(
         noise = np.stack([rng.standard_normal((n_edges, 3)) * sigma for _ in range(n_frames)])
     else:
         noise = np.zeros((1, n_edges, 3))
-    v0 = np.stack(
-        [np.random.default_rng([cfg.graph.seed, i, 31]).standard_normal((3, k)) for i in range(n)]
-    )
+    # the onboard estimator's own draws (DistributedEigenEstimator.start and its restarts)
+    v0 = np.stack([eigen_start_block(cfg.graph.seed, i, k) for i in range(n)])
     restart_v = np.stack(
         [
             np.stack(
                 [
-                    np.random.default_rng([cfg.graph.seed * 7919 + i, r]).standard_normal((3, k))
+                    eigen_restart_block(cfg.graph.seed * 7919 + i, r, k)
                     for r in range(1, MAX_RESTARTS + 1)
                 ]
             )

@@ -31,6 +31,7 @@ from onboard.core.bearings import MAX_ODOMETRY_GAP_S
 from onboard.core.config import AgentConfig, replace_fields
 from onboard.estimation.localization import MAX_CORRECTION_M_S, MAX_CORRECTION_RAD_S
 from onboard.graph import normalize_edges, reciprocal_pairs
+from onboard.seeded import active_start_direction
 from sim import team_kernel
 from sim.runner import Recording, RunnerConfig
 
@@ -179,8 +180,7 @@ def run_compiled(
     u_cmd = np.zeros((n, 3))
     if cfg.mode == "active":
         for me in range(n):
-            d = np.random.default_rng(cfg.graph.seed * 1000 + me + 500).standard_normal(3)
-            u_cmd[me] = speed * d / np.linalg.norm(d)
+            u_cmd[me] = speed * active_start_direction(cfg.graph.seed, me)  # as motion.Active
     rand_z, rand_noise = (
         _random_motion_noise(cfg, n_steps)
         if cfg.mode == "random"

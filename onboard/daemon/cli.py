@@ -9,75 +9,44 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
-
-import typer
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the camera pipeline imports OpenCV: only with camera bearings
     from onboard.daemon.bearings import SimCameraSource
     from onboard.daemon.camera_source import CameraImageSource, DeviceCapture
+
+
+def _error(message: str) -> None:
+    """Print ``message`` on stderr (the daemon's errors; no typer on a vehicle, issue 27)."""
+    print(message, file=sys.stderr, flush=True)
+
 
 SIM_CLOCK_WAIT_S = 10.0
 """How long a daemon with ``clock = "sim"`` waits for the simulator's clock before its link."""
 
 
 def agent(
-    agent_id: Annotated[int, typer.Option("--id", help="This vehicle's agent id (0-based index).")],
-    config: Annotated[Path, typer.Option("--config", help="Fleet file (TOML): docs/flying.md.")],
-    mavlink: Annotated[
-        str | None,
-        typer.Option(help="Autopilot URL (pymavlink style); default from the fleet file."),
-    ] = None,
-    backend: Annotated[str | None, typer.Option(help="pymavlink or mavsdk.")] = None,
-    json_status: Annotated[
-        bool, typer.Option("--json-status", help="Print every status as a JSON line on stdout.")
-    ] = False,
-    log_level: Annotated[str, typer.Option(help="debug, info, warning.")] = "info",
-    bearings: Annotated[
-        str | None,
-        typer.Option(
-            help="sim (the simulator's virtual camera) or camera (images through the camera "
-            "pipeline); default from the fleet file."
-        ),
-    ] = None,
-    camera: Annotated[
-        list[Path] | None,
-        typer.Option(help="Camera file, repeatable: camera_id = order (overrides camera.files)."),
-    ] = None,
-    markers: Annotated[
-        Path | None, typer.Option(help="Markers file (overrides camera.markers).")
-    ] = None,
-    camera_device: Annotated[
-        str | None,
-        typer.Option(help="Local OpenCV capture (index, file or URL) instead of Zenoh images."),
-    ] = None,
-    system_id: Annotated[
-        int | None,
-        typer.Option(
-            min=1,
-            max=255,
-            help="MAVLink system id of this vehicle's autopilot; default: the fleet's "
-            "mavlink.system_id_base + id. Heartbeats of other systems are ignored.",
-        ),
-    ] = None,
-    clock_offset: Annotated[
-        float,
-        typer.Option(
-            help="Fault injection: shift this daemon's clock by this many seconds, to rehearse "
-            "a vehicle whose clock disagrees with the team's (its peers hold; never in flight)."
-        ),
-    ] = 0.0,
-    profile: Annotated[
-        bool,
-        typer.Option(
-            "--profile",
-            help="Log on exit where the daemon's CPU went: core, rigidity, codec, Zenoh, "
-            "MAVLink, loop (onboard/daemon/profile.py; also BEARINGFLOCK_AGENT_PROFILE=1).",
-        ),
-    ] = False,
+    agent_id: int,
+    config: Path,
+    mavlink: str | None = None,
+    backend: str | None = None,
+    json_status: bool = False,
+    log_level: str = "info",
+    bearings: str | None = None,
+    camera: Sequence[Path] | None = None,
+    markers: Path | None = None,
+    camera_device: str | None = None,
+    system_id: int | None = None,
+    clock_offset: float = 0.0,
+    profile: bool = False,
 ) -> None:
-    """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core."""
+    """Run one vehicle's onboard daemon: autopilot link, bearings, Zenoh peers, agent core.
+
+    The options are :data:`onboard.daemon.options.AGENT_OPTIONS` (help, flags, ranges). Ends
+    with :class:`SystemExit` (2: a bad fleet file or option, 1: a worker thread died): the
+    code of ``bearingflock agent`` and ``python -m onboard.daemon``."""
     import os
 
     from messages.fatal import FatalThreads
@@ -98,8 +67,8 @@ def agent(
     finally:
         fatal.uninstall()
     if fatal.message:  # a worker died: the daemon held and stopped, and says why
-        typer.echo(f"error: {fatal.message}", err=True)
-        raise typer.Exit(1)
+        _error(f"error: {fatal.message}")
+        raise SystemExit(1)
 
 
 def _run_agent(
@@ -111,7 +80,7 @@ def _run_agent(
     json_status: bool,
     log_level: str,
     bearings: str | None,
-    camera: list[Path] | None,
+    camera: Sequence[Path] | None,
     markers: Path | None,
     camera_device: str | None,
     system_id: int | None,
@@ -141,35 +110,35 @@ def _run_agent(
     try:
         fleet = load_fleet(config)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _error(f"error: {exc}")
+        raise SystemExit(2) from None
     if not math.isfinite(clock_offset):
-        typer.echo(f"error: --clock-offset must be finite, got {clock_offset}", err=True)
-        raise typer.Exit(2)
+        _error(f"error: --clock-offset must be finite, got {clock_offset}")
+        raise SystemExit(2)
     if not 0 <= agent_id < fleet.n:
-        typer.echo(f"error: --id {agent_id}: the fleet has agents 0..{fleet.n - 1}", err=True)
-        raise typer.Exit(2)
+        _error(f"error: --id {agent_id}: the fleet has agents 0..{fleet.n - 1}")
+        raise SystemExit(2)
     c = fleet.config
     try:
         signing_key = fleet.signing_key(agent_id)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _error(f"error: {exc}")
+        raise SystemExit(2) from None
     if signing_key is not None and (backend or c.mavlink.backend) == "mavsdk":
         from onboard.autopilot.mavsdk_link import MAVSDK_CANNOT_SIGN
 
-        typer.echo(f"error: {MAVSDK_CANNOT_SIGN}", err=True)
-        raise typer.Exit(2)
+        _error(f"error: {MAVSDK_CANNOT_SIGN}")
+        raise SystemExit(2)
     bearings = bearings or c.bearings
     if bearings not in ("sim", "camera"):
-        typer.echo(f"error: --bearings must be sim or camera, got {bearings!r}", err=True)
-        raise typer.Exit(2)
+        _error(f"error: --bearings must be sim or camera, got {bearings!r}")
+        raise SystemExit(2)
     pipelines = _camera_pipelines(fleet, camera, markers) if bearings == "camera" else []
     try:
         settings = fleet.zenoh_settings(agent_id)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _error(f"error: {exc}")
+        raise SystemExit(2) from None
     drops = DropCounter()
     core_config = agent_config(fleet, agent_id)
     neighbours = {j for e in core_config.graph.edges for j in e if agent_id in e} - {agent_id}
@@ -184,8 +153,8 @@ def _run_agent(
             listen_kinds=[(j, k) for j in rigidity_only for k in RIGIDITY_KINDS],
         )  # fmt: skip
     except TransportError as exc:  # a Zenoh port in use, a bad endpoint or config file
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _error(f"error: {exc}")
+        raise SystemExit(2) from None
     if signing_key is not None:  # [security]: Zenoh over mutual TLS
         _warn_without_peers(peers.session, TLS_PEER_WAIT_S)
     if c.clock == "sim":
@@ -253,8 +222,8 @@ def _run_agent(
             try:
                 capture = DeviceCapture(device, source, clock.now)
             except OSError as exc:
-                typer.echo(f"error: {exc}", err=True)
-                raise typer.Exit(2) from None
+                _error(f"error: {exc}")
+                raise SystemExit(2) from None
         else:
             source.subscribe(peers)
     else:
@@ -327,7 +296,7 @@ def _close_all(*closers: Any) -> None:
             logging.getLogger(__name__).exception("while closing %s", close)
 
 
-def _camera_pipelines(fleet: Any, camera: list[Path] | None, markers: Path | None) -> list[Any]:
+def _camera_pipelines(fleet: Any, camera: Sequence[Path] | None, markers: Path | None) -> list[Any]:
     """One vision pipeline per camera of the rig, from the options or the fleet file."""
     from onboard.vision.config import VisionConfigError, load_camera, load_markers
     from onboard.vision.pipeline import VisionPipeline
@@ -336,18 +305,17 @@ def _camera_pipelines(fleet: Any, camera: list[Path] | None, markers: Path | Non
     files = list(camera) if camera else [fleet.resolve(f) for f in c.files]
     markers_file = markers or (fleet.resolve(c.markers) if c.markers else None)
     if not files or markers_file is None:
-        typer.echo(
+        _error(
             "error: camera bearings need camera files and a markers file "
-            "(--camera/--markers or [camera] files/markers in the fleet file)",
-            err=True,
+            "(--camera/--markers or [camera] files/markers in the fleet file)"
         )
-        raise typer.Exit(2)
+        raise SystemExit(2)
     try:
         specs = load_markers(markers_file)
         return [VisionPipeline(load_camera(f), specs) for f in files]
     except VisionConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _error(f"error: {exc}")
+        raise SystemExit(2) from None
 
 
 def _stream_rates(bearings: str, attitude_rate_hz: float) -> dict[str, float]:

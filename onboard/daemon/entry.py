@@ -8,34 +8,24 @@ the daemon's modules take 51 MB resident from this entry point against 65 MB fro
 ``groundstation.cli`` (issue 27, onboard footprint; ``tests/onboard/test_daemon_imports.py``).
 
 The options are not written twice: :func:`agent_parser` builds an :mod:`argparse` parser from
-the typer options of :func:`onboard.daemon.cli.agent` itself (names, types, defaults, help,
-``min``/``max``), so ``python -m onboard.daemon`` and ``bearingflock agent`` take the same
-command line and call the same function (``tests/onboard/test_daemon_entry.py`` compares the
-two parsers). A usage error exits 2 (as typer does); the daemon's own exit codes pass through.
+the plain option table :data:`onboard.daemon.options.AGENT_OPTIONS` (names, types, defaults,
+help, ranges), from which ``bearingflock agent`` builds its typer command
+(``groundstation/agent_cli.py``), so ``python -m onboard.daemon`` and ``bearingflock agent``
+take the same command line and call the same function without the daemon importing typer
+(``tests/onboard/test_daemon_entry.py`` compares the two parsers). A usage error exits 2 (as
+typer does); the daemon's own exit codes pass through.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
-import types
-import typing
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from onboard.daemon.options import AGENT_HELP, AGENT_OPTIONS
+
 PROG = "python -m onboard.daemon"
-
-
-def _base_type(annotation: Any) -> tuple[Any, bool]:
-    """``(scalar type, repeatable)`` of an option's annotation: ``X``, ``X | None``,
-    ``list[X] | None``."""
-    args = [a for a in typing.get_args(annotation) if a is not type(None)]
-    if isinstance(annotation, types.UnionType) or typing.get_origin(annotation) is typing.Union:
-        annotation = args[0]
-    if typing.get_origin(annotation) is list:
-        return typing.get_args(annotation)[0], True
-    return annotation, False
 
 
 def _ranged(kind: type, low: float | None, high: float | None, name: str) -> Any:
@@ -73,44 +63,31 @@ class _Parser(argparse.ArgumentParser):
 def agent_parser() -> _Parser:
     """The ``agent`` command's options as an :class:`argparse.ArgumentParser`; each option's
     destination is the parameter name of :func:`onboard.daemon.cli.agent`."""
-    from typer.utils import get_params_from_function
-
-    from onboard.daemon.cli import agent
-
-    parser = _Parser(prog=PROG, description=(agent.__doc__ or "").strip())
-    for name, meta in get_params_from_function(agent).items():
-        info = meta.default
-        decls = list(info.param_decls or ()) or ["--" + name.replace("_", "-")]
-        kind, repeatable = _base_type(meta.annotation)
-        required = info.default is ...
-        if kind is bool:
-            parser.add_argument(*decls, dest=name, action="store_true", help=info.help)
+    parser = _Parser(prog=PROG, description=AGENT_HELP)
+    for opt in AGENT_OPTIONS:
+        if opt.kind is bool:
+            parser.add_argument(*opt.flags, dest=opt.name, action="store_true", help=opt.help)
             continue
-        convert: Any = kind if kind in (int, float, str, Path) else str
-        if info.min is not None or info.max is not None:
-            convert = _ranged(kind, info.min, info.max, decls[0])
+        convert: Any = opt.kind if opt.kind in (int, float, str, Path) else str
+        if opt.low is not None or opt.high is not None:
+            convert = _ranged(opt.kind, opt.low, opt.high, opt.flags[0])
         parser.add_argument(
-            *decls,
-            dest=name,
+            *opt.flags,
+            dest=opt.name,
             type=convert,
-            action="append" if repeatable else "store",
-            required=required,
-            default=None if required or repeatable else info.default,
-            help=info.help,
+            action="append" if opt.repeatable else "store",
+            required=opt.required,
+            default=None if opt.required or opt.repeatable else opt.default,
+            help=opt.help,
         )
-        if repeatable:
-            parser.repeatable.append(name)
+        if opt.repeatable:
+            parser.repeatable.append(opt.name)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """Parse ``argv`` (default ``sys.argv[1:]``) and run the daemon; exits with its code."""
-    import typer
-
+    """Parse ``argv`` (default ``sys.argv[1:]``) and run the daemon; its :class:`SystemExit`
+    (2: a bad fleet file, ...) passes through."""
     from onboard.daemon.cli import agent
 
-    options = agent_parser().options(argv)
-    try:
-        agent(**options)
-    except typer.Exit as exc:  # the daemon's own exit codes (2: a bad fleet file, ...)
-        sys.exit(exc.exit_code)
+    agent(**agent_parser().options(argv))

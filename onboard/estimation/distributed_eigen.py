@@ -65,6 +65,7 @@ from onboard.estimation.round_consensus import (
 from onboard.estimation.star_rigidity import Star, star, weighted_degree, weighted_matvec
 from onboard.geometry import FloatArray, IntArray
 from onboard.rigidity.weights import SensingModel
+from onboard.seeded import eigen_restart_block, eigen_start_block
 
 N_TRIVIAL = 7
 _TRIU_T = np.triu_indices(N_TRIVIAL)
@@ -304,10 +305,11 @@ class DistributedEigenEstimator:
     def start(
         cls, seed: int, agent_id: int, gains: EigenGains | None = None
     ) -> DistributedEigenEstimator:
-        """A random unit-size start (seeded per agent)."""
+        """A small random start, seeded per agent (:func:`onboard.seeded.eigen_start_block`:
+        no ``numpy.random``, and why small)."""
         g = gains or EigenGains()
-        rng = np.random.default_rng([seed, agent_id, 31])
-        return cls(v=rng.standard_normal((3, g.columns)), gains=g, seed=seed * 7919 + agent_id)
+        v = eigen_start_block(seed, agent_id, g.columns)
+        return cls(v=v, gains=g, seed=seed * 7919 + agent_id)
 
     def share(self) -> tuple[FloatArray, FloatArray]:
         """The consensus state ``(x, z)`` to send (empty before the first round)."""
@@ -353,7 +355,7 @@ class DistributedEigenEstimator:
             # diverging (e.g. a step too large for a spectrum that jumped): restart from a
             # fresh direction rather than feed the controller garbage
             self.restarts += 1
-            v_new = np.random.default_rng([self.seed, self.restarts]).standard_normal((3, k))
+            v_new = eigen_restart_block(self.seed, self.restarts, k)
             self.x, self.z = None, None
         self.v = v_new
 

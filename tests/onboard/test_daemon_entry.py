@@ -1,8 +1,9 @@
 """``python -m onboard.daemon`` takes the command line of ``bearingflock agent`` (issue 27).
 
-The lean entry point's argparse parser is built from the typer options of
-``onboard.daemon.cli.agent`` (``onboard/daemon/entry.py``); this compares it with the click
-command typer builds from the same function: option names, which are required and repeatable,
+The lean entry point's argparse parser (``onboard/daemon/entry.py``) and the typer command of
+``bearingflock agent`` (``groundstation/agent_cli.py``) are both built from the plain option
+table ``onboard.daemon.options.AGENT_OPTIONS``; this compares the argparse parser with the
+click command typer builds: option names, which are required and repeatable,
 defaults, the values a full command line parses to, and the ``--system-id`` range.
 """
 
@@ -18,7 +19,7 @@ import pytest
 import typer
 import typer.main
 
-from onboard.daemon.cli import agent
+from groundstation.agent_cli import agent_command
 from onboard.daemon.entry import agent_parser
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -27,7 +28,7 @@ TYPER_ONLY = {"install_completion", "show_completion"}  # typer's own, of a one-
 
 def _typer_command() -> Any:
     app = typer.Typer()
-    app.command()(agent)
+    app.command()(agent_command)
     return typer.main.get_command(app)
 
 

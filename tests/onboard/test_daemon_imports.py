@@ -7,7 +7,10 @@ source, so the test follows the code) and the pymavlink link it opens with simul
 None of that may pull in SciPy (about 27 MB resident), OpenCV (only with a camera), numba or
 matplotlib. The lean entry point, run for real up to the fleet file, must in addition leave out
 the rest of the toolkit's command line (``groundstation``, ``sim``), pydantic (typer's option
-coercion) and rich (typer's help and errors): 51 against 65 MB of imports. Checked in a fresh
+coercion), rich (typer's help and errors) and typer itself (about 3 MB with click; the
+options are a plain table, ``onboard/daemon/options.py``): 51 against 65 MB of imports. A
+core as the demo configures it (active, rigidity maintenance on) starts without
+``numpy.random`` (6.8 MB; its seeded draws are ``onboard/seeded.py``). Checked in a fresh
 interpreter: ``sys.modules`` of the test process says nothing about a daemon's.
 """
 
@@ -22,8 +25,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 HEAVY = ("scipy", "cv2", "numba", "matplotlib")
-NOT_ON_A_VEHICLE = ("groundstation", "sim", "pydantic", "pydantic_core", "rich")
-"""Packages the lean entry point leaves out: the ground station's and simulator's commands."""
+NOT_ON_A_VEHICLE = ("groundstation", "sim", "pydantic", "pydantic_core", "rich", "typer", "click")
+"""Packages the lean entry point leaves out: the ground station's and simulator's commands,
+typer and click (its options are a plain table, ``onboard/daemon/options.py``)."""
 
 
 def run_agent_imports() -> list[str]:
@@ -105,3 +109,22 @@ def test_lean_entry_point_leaves_out_the_ground_station_sim_pydantic_and_rich(
     # the same check sees them through bearingflock's full command line
     full = _started_daemon_packages(["groundstation.cli", "agent"], tmp_path / "missing.toml")
     assert {"groundstation", "sim"} <= set(full)
+
+
+def test_a_core_in_the_demos_mode_starts_without_numpy_random() -> None:
+    """The lean entry point's modules and an agent core in the demo's mode (active, rigidity
+    maintenance on, so the distributed eigen estimator starts too) load neither
+    ``numpy.random`` (its seeded draws loaded it: 6.8 MB) nor typer."""
+    code = (
+        "import json, sys\n"
+        "import onboard.daemon.entry\n"
+        "from onboard.core.agent import AgentCore\n"
+        "from onboard.core.config import build_config\n"
+        "edges = ((0, 1), (1, 0), (1, 2), (2, 1), (0, 2), (2, 0), (0, 3), (3, 0), (1, 3), (3, 1))\n"
+        "desired = tuple((i, j, (1.0, 0.0, 0.0)) for i, j in edges)\n"
+        "core = AgentCore(build_config(agent_id=0, n_agents=4, edges=edges,\n"
+        "    mode='formation-active', desired_beta_body=desired, rigidity_maintenance=True))\n"
+        "assert core.rigidity is not None and core.rigidity.eigen.v.shape == (3, 3)\n"
+        "print(json.dumps([m for m in ('numpy.random', 'typer', 'click') if m in sys.modules]))\n"
+    )
+    assert _fresh_interpreter_json(code) == []
