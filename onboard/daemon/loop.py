@@ -74,6 +74,7 @@ from onboard.daemon.peer_clock import PeerClockCheck
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.daemon.presence import PeerPresence
 from onboard.daemon.replay import SeqWindow
+from onboard.daemon.tape import TapeWriter, tape_path
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.bearing import ibr_r3s1
@@ -254,6 +255,9 @@ class AgentDaemon:
         self.url = mavlink_url
         self.on_status = on_status
         self.core = AgentCore(agent_config(fleet, agent_id))
+        tape = tape_path(agent_id)
+        self.tape = TapeWriter(tape, self.core.config) if tape else None
+        """The core's flight recorder (:mod:`onboard.daemon.tape`; None: off)."""
         self.state = DaemonState()
         self.stop_event = threading.Event()
         self._landing = threading.Event()
@@ -675,11 +679,18 @@ class AgentDaemon:
             quiet = msgspec.structs.replace(own, bearings=(), ranges=())
             for k in range(1, n):
                 t_k = last + (now_s - last) * k / n
-                _, early = self.core.step(t_k, msgspec.structs.replace(quiet, t_s=t_k), ())
+                _, early = self._core_step(t_k, msgspec.structs.replace(quiet, t_s=t_k), [])
                 out.extend(early)
-        setpoint, last_out = self.core.step(now_s, own, inbox)
+        setpoint, last_out = self._core_step(now_s, own, inbox)
         out.extend(last_out)
         return setpoint, out
+
+    def _core_step(
+        self, t_s: float, own: OwnMeasurements, inbox: list[Payload]
+    ) -> tuple[Setpoint, list[Payload]]:
+        if self.tape is not None:
+            self.tape.step(t_s, own, inbox)
+        return self.core.step(t_s, own, inbox)
 
     def _clock_went_back(self, last_s: float, now_s: float) -> None:
         """The daemon's clock went back (a restarted simulator, ``clock_resync``): what the
@@ -794,6 +805,8 @@ class AgentDaemon:
                 self.link.land()
             self.link.stop_streaming("daemon exit")
         self.state.set(Phase.STOPPED)
+        if self.tape is not None:
+            self.tape.close()
         summary = self.metrics.summary()
         summary["bearing_to_wire"] = percentiles_ms(list(self.link.setpoint_ages_s))
         summary["frame_to_wire"] = percentiles_ms(list(self.link.frame_to_wire_s))
