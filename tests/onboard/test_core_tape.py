@@ -22,8 +22,14 @@ def _flown_inputs() -> tuple[object, list[tuple[float, OwnMeasurements, list[Pay
     yaw0 = rng.uniform(-np.pi, np.pi, n)
     p_hat0 = tuple(tuple(float(x) for x in 0.7 * row) for row in p0)
     cfgs = [
-        build_config(agent_id=i, n_agents=n, edges=edges, mode="active", p_hat0_ned=p_hat0,
-                     yaw_hat0_rad=tuple(float(y) for y in yaw0))  # fmt: skip
+        build_config(
+            agent_id=i,
+            n_agents=n,
+            edges=edges,
+            mode="active",
+            p_hat0_ned=p_hat0,
+            yaw_hat0_rad=tuple(float(y) for y in yaw0),
+        )
         for i in range(n)
     ]
     inputs: list[tuple[float, OwnMeasurements, list[Payload]]] = []
@@ -60,7 +66,7 @@ def test_a_tape_replays_to_the_flights_outputs(tmp_path):
     assert sum(1 for _ in steps) == len(inputs)
     replayed = list(replay(path))
     assert len(replayed) == len(flown)
-    for (t_s, setpoint, out), (sp_flown, out_flown) in zip(replayed, flown, strict=True):
+    for (_t_s, setpoint, out), (sp_flown, out_flown) in zip(replayed, flown, strict=True):
         assert setpoint == sp_flown
         assert [encode(p) for p in out] == [encode(p) for p in out_flown]
 
