@@ -10,6 +10,8 @@ tape and reports each pair's distance-estimate error after the mission start, fo
 * ``constant error removed``: each vehicle's odometry (its own samples and the ``MotionShare``
   its peers received) corrected by the flight's best constant body-frame velocity gain and
   bias, fitted against the truth: what a perfect estimate of a constant bias could give;
+* ``error low-passed over T s removed``: the odometry's error low-passed causally with time
+  constant ``T`` (``--slow``) taken out: what a bias estimator of that bandwidth could give;
 * ``true velocity``: every body-frame velocity replaced by the truth's (yaw and yaw rate kept):
   what is left when the odometry's velocity is exact.
 
@@ -88,6 +90,32 @@ def fit_constant_error(z: np.lib.npyio.NpzFile, truth: Truth, k: int) -> tuple[f
     return float(g), np.array([bx, by])
 
 
+class SlowError:
+    """Vehicle ``k``'s odometry velocity error (body frame, against the truth) low-passed with
+    time constant ``tau_s``, causally: the part a bias estimator of that bandwidth could know."""
+
+    def __init__(self, z: np.lib.npyio.NpzFile, truth: Truth, k: int, tau_s: float) -> None:
+        lpn = z[f"lpn{k}"][np.argsort(z[f"lpn{k}"][:, 0])]
+        att = z[f"att{k}"][np.argsort(z[f"att{k}"][:, 0])]
+        ts = lpn[:, 0]
+        yaw = np.interp(ts, att[:, 0], np.unwrap(att[:, 3]))
+        c, s = np.cos(yaw), np.sin(yaw)
+        meas = np.stack([c * lpn[:, 4] + s * lpn[:, 5], -s * lpn[:, 4] + c * lpn[:, 5]], axis=1)
+        err = meas - np.array([truth.v_body(k, t)[:2] for t in ts])
+        slow = np.zeros_like(err)
+        acc = err[0]
+        for m in range(len(ts)):
+            dt = ts[m] - ts[m - 1] if m else 0.0
+            a = math.exp(-dt / tau_s)
+            acc = a * acc + (1.0 - a) * err[m]
+            slow[m] = acc
+        self.ts, self.slow = ts, slow
+
+    def at(self, t_s: float) -> tuple[float, float]:
+        return (float(np.interp(t_s, self.ts, self.slow[:, 0])),
+                float(np.interp(t_s, self.ts, self.slow[:, 1])))  # fmt: skip
+
+
 Fix = Callable[[int, float, Vec3], Vec3]
 
 
@@ -147,6 +175,8 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=None, dest="changes",
                     help="ScaleGains NAME=VALUE[,...] to replay with besides the tape's; "
                     "repeatable (default: alpha=1.0 and sfm_alpha_settled=1.0)")  # fmt: skip
+    ap.add_argument("--slow", type=float, nargs="*", default=[5.0],
+                    help="time constants of the slow-error variants (s)")  # fmt: skip
     args = ap.parse_args()
     npz = next(args.out.glob("team_*/team_*.npz"))
     z = np.load(npz)
@@ -173,6 +203,14 @@ def main() -> None:
     variants: dict[str, Fix | None] = {"flown": None}
     if fits:
         variants["constant error removed"] = constant
+        for tau_s in args.slow:
+            slow = {k: SlowError(z, truth, k, tau_s) for k in range(n)}
+
+            def remove_slow(k: int, s: float, v: Vec3, slow: dict = slow) -> Vec3:
+                ex, ey = slow[k].at(s)
+                return (v[0] - ex, v[1] - ey, v[2])
+
+            variants[f"error low-passed over {tau_s:g} s removed"] = remove_slow
     variants["true velocity"] = true_velocity
     changes = ["", *(args.changes or ["alpha=1.0", "sfm_alpha_settled=1.0"])]
     print(f"\n{npz.parent.name}: every pair's distance error, 30 s after the mission start "
