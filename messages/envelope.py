@@ -28,6 +28,7 @@ import msgspec
 
 from messages.codec import (
     MAX_PAYLOAD_BYTES,
+    SCHEMA_VERSION,
     MessageError,
     Payload,
     _dec_hook,
@@ -39,6 +40,7 @@ from messages.codec import (
     may_hold_nonfinite,
 )
 from messages.keys import PEER_TOPIC, parse_key
+from messages.limits import AgentId, Seq, Stamp
 from messages.peer import PeerPayload
 from messages.vocabulary import DropReason
 
@@ -54,9 +56,17 @@ class PeerEnvelope(Payload, tag="peer.envelope"):
     payloads: Annotated[list[PeerPayload], msgspec.Meta(max_length=ENVELOPE_MAX_PAYLOADS)]
 
 
-class _RawEnvelope(Payload, tag="peer.envelope"):
-    """An envelope whose payloads are left as MessagePack (:func:`unpack`'s slow path)."""
+class _RawEnvelope(
+    msgspec.Struct, tag_field="type", tag="peer.envelope", kw_only=True, forbid_unknown_fields=True
+):
+    """An envelope whose payloads are left as MessagePack (:func:`unpack`'s slow path). Not a
+    :class:`Payload` subclass, so that no registry of payload types by tag
+    (:func:`groundstation.gcs.schemas.payload_types`) mistakes it for :class:`PeerEnvelope`."""
 
+    version: int = SCHEMA_VERSION
+    sender: AgentId
+    seq: Seq = 0
+    stamp_s: Stamp = 0.0
     payloads: Annotated[list[msgspec.Raw], msgspec.Meta(max_length=ENVELOPE_MAX_PAYLOADS)]
 
 
