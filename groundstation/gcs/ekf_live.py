@@ -6,8 +6,8 @@ its odometry ``MotionShare`` and camera frames ``BearingShare`` among them) and 
 (``.../status``: the daemon's own estimate, for the cross-check); Zenoh's callbacks only queue
 the bytes, :meth:`LiveEstimator.pump` decodes them
 (:func:`groundstation.gcs.zenoh_listener.classify_all`: undecodable or mis-addressed samples
-and payloads are counted by reason) and feeds the loop in the caller's thread. The simulator's truth is never
-subscribed to. :func:`render` draws the loop's summary as a rich table (like ``gcs monitor``).
+and payloads are counted by reason) and feeds the loop in the caller's thread. The
+simulator's truth is never subscribed to. :func:`render` draws the loop's summary as a rich table (like ``gcs monitor``).
 """
 
 from __future__ import annotations
