@@ -155,10 +155,10 @@ def unpack(
     kinds (:func:`kind_of`), e.g. the rigidity layer's from an agent outside the graph; the
     others are not errors. Raises :class:`MessageError` when the envelope itself is unusable
     (oversize, not an envelope, another schema version, its header's sender); a bad payload
-    inside only adds to ``errors`` (one of a kind not asked for too, when it cannot even be
-    decoded: its kind is not known then)."""
+    inside only adds to ``errors`` (one of a kind not asked for only when its tag cannot be
+    read: its kind is not known then)."""
     env: Any = None
-    if len(data) <= MAX_PAYLOAD_BYTES:
+    if kinds is None and len(data) <= MAX_PAYLOAD_BYTES:
         try:
             env = _fast_decoder.decode(data)
         except msgspec.DecodeError:  # a payload (or the envelope) is bad: find out which
@@ -172,11 +172,14 @@ def unpack(
             DropReason.SENDER_MISMATCH, f"envelope of {env.sender} on agent {sender}'s key"
         )
     out = Unpacked(env.sender, env.seq, env.stamp_s, [])
+    tags = None if kinds is None else {f"peer.{k}" for k in kinds}
     for item in env.payloads:
-        if not raw and kinds is not None and kind_of(item) not in kinds:
-            continue
         try:
             if raw:
+                # only the kinds asked for are decoded (a payload's tag is read first: the
+                # rigidity layer's further neighbours send every kind, it keeps two)
+                if tags is not None and _tag_of(item) not in tags:
+                    continue
                 p = decode(item, PeerPayload, known_senders=known_senders)
             else:
                 p = item
@@ -192,10 +195,25 @@ def unpack(
                 )
             )
             continue
-        if kinds is not None and kind_of(p) not in kinds:
-            continue
         out.payloads.append(p)
     return out
+
+
+class _Tag(msgspec.Struct):
+    """A payload's ``type`` tag alone (every other field is skipped, not built)."""
+
+    type: Any = None
+
+
+_tag_decoder = msgspec.msgpack.Decoder(_Tag)
+
+
+def _tag_of(raw: msgspec.Raw) -> Any:
+    """The tag of one raw payload; :class:`MessageError` (malformed) if it has none to read."""
+    try:
+        return _tag_decoder.decode(raw).type
+    except msgspec.DecodeError as exc:
+        raise MessageError(DropReason.MALFORMED, f"payload in an envelope: {exc}") from None
 
 
 def envelope_sender(key: str) -> int | None:

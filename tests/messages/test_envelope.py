@@ -187,3 +187,19 @@ def test_sample_payloads_reads_the_sender_from_the_key():
     with pytest.raises(MessageError) as info:
         sample_payloads("bf/alpha/1/status", data)
     assert info.value.reason == "foreign"
+
+
+def test_kinds_not_asked_for_are_not_even_decoded():
+    tick = _tick()
+    bad_motion = {**_as_map(tick[0]), "yaw_rad": float("nan")}
+    bad_eigen = {**_as_map(tick[3]), "lambda_hat": "big"}
+    data = _raw_envelope(1, [bad_motion, _as_map(tick[3])])
+    got = unpack(data, sender=1, kinds={"rigidity_eigen"})
+    assert [type(p) for p in got.payloads] == [RigidityEigenShare] and got.errors == []
+    got = unpack(_raw_envelope(1, [bad_motion, bad_eigen]), sender=1, kinds={"rigidity_eigen"})
+    assert got.payloads == [] and [e.reason for e in got.errors] == ["malformed"]
+    forged = {**_as_map(tick[3]), "sender": 2}
+    got = unpack(_raw_envelope(1, [forged]), sender=1, kinds={"rigidity_eigen"})
+    assert got.payloads == [] and [e.reason for e in got.errors] == ["sender_mismatch"]
+    got = unpack(_raw_envelope(1, [b"\xc1"]), sender=1, kinds={"motion"})  # type: ignore[list-item]
+    assert [e.reason for e in got.errors] == ["malformed"]  # no tag to read: counted
