@@ -17,7 +17,9 @@ are stretched in wall time).
 
 ``--decode`` times instead ``messages.codec.decode`` of every peer payload kind (a sample
 built from each kind's field types: six neighbours, six-entry arrays), microseconds per
-message: the validation path every one of a daemon's ~1,150 peer callbacks a second takes.
+message: the validation path every one of a daemon's ~1,150 peer callbacks a second took
+before the peer envelope (issue 27), and ``messages.envelope.unpack`` of one envelope holding
+one of each (a checkout that has it).
 
 ``--before PATH`` measures another checkout (e.g. ``git worktree add --detach /tmp/fp-before
 main``) in the same invocation, first, with the same script (this file run with that
@@ -188,6 +190,10 @@ def _sample(t: Any) -> Any:
         return np.full(6, 0.5).tobytes()
     if isinstance(t, mi.LiteralType):
         return t.values[0]
+    if isinstance(t, mi.StructType):  # a list entry (schema 4): a short array, or a map
+        if t.array_like:
+            return [_sample(f.type) for f in t.fields]
+        return {f.encode_name: _sample(f.type) for f in t.fields}
     raise TypeError(f"no sample for {t!r}")
 
 
@@ -201,20 +207,35 @@ def measure_decode(repeat: int = 20_000) -> dict[str, Any]:
     from messages.codec import decode
     from messages.peer import PeerPayload
 
-    per_kind = {}
-    for kind in get_args(PeerPayload):
-        info = mi.type_info(kind)
-        raw = {f.encode_name: _sample(f.type) for f in info.fields if f.name != "version"}
-        raw[info.tag_field] = info.tag
-        data = msgspec.msgpack.encode(raw)
-        decode(data, PeerPayload)  # valid, and the decoder cached
+    def best_us(fn: Any, data: bytes) -> float:
+        fn(data)  # valid, and the decoder cached
         best = float("inf")
         for _ in range(5):
             t0 = time.perf_counter()
             for _ in range(repeat):
-                decode(data, PeerPayload)
+                fn(data)
             best = min(best, (time.perf_counter() - t0) / repeat)
-        per_kind[kind.__name__] = 1e6 * best
+        return 1e6 * best
+
+    per_kind = {}
+    raws = []
+    for kind in get_args(PeerPayload):
+        info = mi.type_info(kind)
+        raw = {f.encode_name: _sample(f.type) for f in info.fields if f.name != "version"}
+        raw[info.tag_field] = info.tag
+        raws.append(raw)
+        per_kind[kind.__name__] = best_us(
+            lambda d: decode(d, PeerPayload), msgspec.msgpack.encode(raw)
+        )
+    try:  # one envelope of every kind (issue 27); a checkout from before has none
+        from messages.envelope import unpack
+    except ImportError:
+        return {"decode_us": per_kind}
+    per_kind["sum of the kinds"] = sum(per_kind.values())
+    env = {"type": "peer.envelope", "sender": raws[0]["sender"], "payloads": raws}
+    data = msgspec.msgpack.encode(env)
+    assert len(unpack(data).payloads) == len(raws)
+    per_kind["PeerEnvelope (all)"] = best_us(unpack, data)
     return {"decode_us": per_kind}
 
 

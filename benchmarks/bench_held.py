@@ -12,7 +12,9 @@ lost 0 of 9,864 samples". The fixes since must not have broken any of it. Parts 
   field of the wrong type, a missing field, an unknown payload type, an unknown sender, a
   payload on another sender's key, a key the fleet does not use (each a real captured payload
   of the team changed in one way; fresh sequence numbers and stamps, so the change is the only
-  reason to drop it). Measured: what the receivers counted and dropped, by reason, against the
+  reason to drop it; each goes in a peer envelope of the key's vehicle, as the daemons send
+  payloads since issue 27, so a malformation that breaks MessagePack breaks the envelope).
+  Measured: what the receivers counted and dropped, by reason, against the
   deliveries there can be (each sample reaches the two other daemons), and whether the team kept
   flying (daemons alive, status gaps, formation size, distance error, fast flight).
 * ``mavlink-fuzz``: a 2-vehicle simulator (``bench_sim_target.start_sim``) gets 110,000 fuzzed
@@ -101,6 +103,10 @@ def _retag(key: str, sender: int) -> str:
     parts = key.split("/")
     parts[2] = str(sender)
     return "/".join(parts)
+
+
+def _key_sender(key: str) -> int:
+    return int(key.split("/")[2])
 
 
 def _enc(raw: dict) -> bytes:
@@ -227,7 +233,7 @@ def part_malformed(seed: int, count: int, rate: float, watch_s: float) -> dict[s
         team.capture = True
         time.sleep(2.0)
         team.capture = False
-        corpus = [(k, msgspec.msgpack.decode(d)) for k, d in team.captured if "/peer/" in k]
+        corpus = list(team.captured)  # (envelope key, one payload of it as a map)
         before = _codec_drops(team.ev.snapshot())
         kinds = dict.fromkeys(MALFORMATIONS, 0)
         names = list(MALFORMATIONS)
@@ -244,7 +250,8 @@ def part_malformed(seed: int, count: int, rate: float, watch_s: float) -> dict[s
             if kind not in KEY_LEVEL and _decodes(data):  # e.g. a missing field with a default
                 valid += 1
                 continue
-            team.put(k, data)
+            # in an envelope of the key's vehicle, as the daemons send them (messages.envelope)
+            team.put(k, bp.envelope(_key_sender(k), [msgspec.Raw(data)]))
             kinds[kind] += 1
             n += 1
             delay = a + (n + 1) / rate - time.monotonic()

@@ -98,15 +98,23 @@ flies at a few tenths of a m/s)."""
 BITFLIP_SEEDS = (23, 24, 25)
 
 
-class _Head(msgspec.Struct):
-    """The header fields of any payload (the rest is ignored)."""
+class _Envelope(msgspec.Struct):
+    """A peer envelope's sender and its payloads as plain maps (the rest is ignored)."""
 
     sender: int
-    seq: int
-    stamp_s: float
+    payloads: list[Any]
 
 
-_head = msgspec.msgpack.Decoder(_Head)
+_envelope = msgspec.msgpack.Decoder(_Envelope)
+
+
+def envelope(sender: int, payloads: list[Any]) -> bytes:
+    """Peer payloads (plain maps, or ``msgspec.Raw`` bytes) in an envelope on the wire, as a
+    compromised ``sender`` puts it (:mod:`messages.envelope`: one per publish tick)."""
+    return msgspec.msgpack.encode(
+        {"type": "peer.envelope", "version": SCHEMA_VERSION, "sender": sender, "seq": 0,
+         "stamp_s": 0.0, "payloads": payloads}
+    )  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------ team
@@ -151,7 +159,7 @@ class Team:
     _stop: threading.Event = field(default_factory=threading.Event)
 
     def start(self) -> None:
-        self._sub = self.ev.session.declare_subscriber(f"bf/{self.name}/*/peer/*", self._on_peer)
+        self._sub = self.ev.session.declare_subscriber(f"bf/{self.name}/*/peer", self._on_peer)
         self._thread = threading.Thread(target=self._watch, daemon=True)
         self._thread.start()
 
@@ -162,22 +170,28 @@ class Team:
             self._sub.undeclare()
 
     def _on_peer(self, sample: Any) -> None:
+        """One peer envelope (messages.envelope): its payloads' numbers and, when capturing,
+        the payloads themselves (as plain maps, with the envelope key they came on)."""
         data = sample.payload.to_bytes()
         with self._lock:
             if hash(data) in self._mine:
                 self._mine.discard(hash(data))
                 return
         try:
-            h = _head.decode(data)
+            env = _envelope.decode(data)
         except msgspec.DecodeError:
             return
         now = time.monotonic()
+        key = str(sample.key_expr)
         with self._lock:
-            if str(sample.key_expr).endswith("/peer/motion"):  # one per publish period
-                self.peer_times.setdefault(h.sender, deque(maxlen=20000)).append(now)
-            self.seq_seen.setdefault(h.sender, deque(maxlen=400)).append((now, h.seq))
-            if self.capture:
-                self.captured.append((str(sample.key_expr), data))
+            for raw in env.payloads:
+                if not isinstance(raw, dict) or not isinstance(raw.get("seq"), int):
+                    continue
+                if raw.get("type") == "peer.motion":  # one per publish period
+                    self.peer_times.setdefault(env.sender, deque(maxlen=20000)).append(now)
+                self.seq_seen.setdefault(env.sender, deque(maxlen=400)).append((now, raw["seq"]))
+                if self.capture:
+                    self.captured.append((key, raw))
 
     def _watch(self) -> None:
         while not self._stop.wait(0.1):
@@ -228,19 +242,20 @@ class Team:
         return q
 
     def raw(self, tag: str, sender: int, stamp_s: float, **fields: Any) -> bytes:
-        """A payload as a compromised sender puts it on the wire (no checks on encode)."""
-        return msgspec.msgpack.encode(
-            {"type": tag, "version": SCHEMA_VERSION, "sender": sender, "seq": self.seq(sender),
-             "stamp_s": stamp_s, **fields}
-        )  # fmt: skip
+        """A payload as a compromised sender puts it on the wire (no checks on encode); a peer
+        payload in an envelope of its own (:func:`envelope`)."""
+        body = {"type": tag, "version": SCHEMA_VERSION, "sender": sender, "seq": self.seq(sender),
+                "stamp_s": stamp_s, **fields}  # fmt: skip
+        return envelope(sender, [body]) if tag.startswith("peer.") else msgspec.msgpack.encode(body)
 
     def put(self, key: str, data: bytes) -> None:
         with self._lock:
             self._mine.add(hash(data))
         self.ev.session.put(key, data)
 
-    def peer_key(self, sender: int, tag: str) -> str:
-        return f"bf/{self.name}/{sender}/peer/{tag.removeprefix('peer.')}"
+    def peer_key(self, sender: int) -> str:
+        """Where ``sender``'s peer envelopes go (every kind)."""
+        return f"bf/{self.name}/{sender}/peer"
 
     # ------------------------------------------------------------------ what is measured
     def wait_flying(self, timeout_s: float) -> float:
@@ -445,10 +460,10 @@ def attack_d1_poison(quick: bool) -> dict[str, Any]:
         t = team.now_s()
         motion = {"yaw_rate_rad_s": 0.0, "yaw_rad": 0.0}
         team.put(
-            team.peer_key(1, "peer.motion"),
+            team.peer_key(1),
             team.raw("peer.motion", 1, t, v_body=[1e300, 0.0, 0.0], **motion),
         )
-        team.put(team.peer_key(1, "peer.localization"),
+        team.put(team.peer_key(1),
                  team.raw("peer.localization", 1, t, p_hat_ned=[1e300, 0.0, 0.0],
                           yaw_hat_rad=0.0))  # fmt: skip
         a = time.monotonic()
@@ -481,7 +496,7 @@ def attack_d1_bitflip(
         team.capture = True
         time.sleep(2.0)
         team.capture = False
-        corpus = [(k, msgspec.msgpack.decode(d)) for k, d in team.captured if "/peer/" in k]
+        corpus = list(team.captured)
         if kinds_only is not None:
             corpus = [(k, raw) for k, raw in corpus if raw.get("type") in kinds_only]
         t_mono, t_sim = time.monotonic(), team.now_s()
@@ -500,7 +515,7 @@ def attack_d1_bitflip(
             except MessageError:
                 team.last_seq[int(raw["sender"])] -= 1  # that number was not used
                 continue
-            team.put(k, data)
+            team.put(k, envelope(int(raw["sender"]), [msgspec.Raw(data)]))
             accepted += 1
             kinds[raw["type"]] = kinds.get(raw["type"], 0) + 1
             delay = a + accepted * spread_s / count - time.monotonic()
@@ -524,8 +539,7 @@ def attack_d2(quick: bool) -> dict[str, Any]:
         time.sleep(1.0)
         team.capture = False
         newest: dict[str, tuple[str, dict]] = {}
-        for k, d in team.captured:
-            raw = msgspec.msgpack.decode(d)
+        for k, raw in team.captured:
             if raw.get("sender") == 2:
                 newest[raw["type"]] = (k, raw)
         future = team.now_s() + 1e6
@@ -533,7 +547,7 @@ def attack_d2(quick: bool) -> dict[str, Any]:
             raw = dict(raw, seq=team.seq(2), stamp_s=future)
             if raw["type"] == "peer.excitation":
                 raw["entries"] = [[*e[:3], future] for e in raw["entries"]]
-            team.put(k, msgspec.msgpack.encode(raw))
+            team.put(k, envelope(2, [raw]))
         team.put(f"bf/{team.name}/0/camera/bearings",
                  team.raw("camera_bearings", 0, future, targets=[1],
                           beta_body=[[1.0, 0.0, 0.0]]))  # fmt: skip
@@ -571,7 +585,7 @@ def attack_d4(quick: bool) -> dict[str, Any]:
 
         watcher = threading.Thread(target=watch_rss, daemon=True)
         watcher.start()
-        ck, ek = team.peer_key(1, "peer.consensus"), team.peer_key(1, "peer.excitation")
+        ck = ek = team.peer_key(1)
 
         def issue() -> None:  # 20 x 45,000 names, one table of 20,000 fake edges
             for states in issue_names:

@@ -7,7 +7,8 @@ twice in one run: as before (one channel per key, the raw bytes, no schema) and 
 no ``.tlog``: no MAVLink here). Both use the same MCAP chunk size and zstd compression.
 Samples: ``--from FILE`` takes the Zenoh samples of a recording; by default a synthetic team of
 ``--agents`` agents for ``--seconds`` s at the daemons' rates (status 10 Hz, truth 50 Hz,
-camera bearings 30 Hz, motion 50 Hz, SfM estimates and consensus 10 Hz).
+camera bearings 30 Hz, peer envelopes 50 Hz: motion in each, SfM estimates and consensus in
+every fifth).
 
 Usage: ``python benchmarks/bench_record.py [--agents 6] [--seconds 20] [--from FILE]``.
 """
@@ -27,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the scripted sta
 
 from groundstation.gcs.record import CHUNK_BYTES, Recorder, Source, iter_records
 from messages.codec import encode
+from messages.envelope import pack
 from messages.peer import (
     ConsensusEntry,
     ConsensusState,
@@ -51,16 +53,17 @@ def synthetic(n: int, seconds: float) -> list[tuple[str, bytes, float]]:
             out.append((f"{pre}/truth", encode(Truth(sender=i, seq=k, stamp_s=t,
                         p_ned=(1.0 * i, t, -5.0), v_ned=(0.0, 1.0, 0.1), yaw_rad=0.1 * i,
                         yaw_rate_rad_s=0.01)), t))  # fmt: skip
-            out.append((f"{pre}/peer/motion", encode(MotionShare(sender=i, seq=k, stamp_s=t,
-                        v_body=(1.0, 0.2, 0.0), yaw_rate_rad_s=0.01, yaw_rad=t)), t))  # fmt: skip
+            tick: list = [MotionShare(sender=i, seq=k, stamp_s=t, v_body=(1.0, 0.2, 0.0),
+                                      yaw_rate_rad_s=0.01, yaw_rad=t)]  # fmt: skip
             if k % 5 == 0:
                 out.append((f"{pre}/status", encode(scripted_status(cfg, i, t, k, "flying")), t))
-                out.append((f"{pre}/peer/sfm", encode(SfmEstimate(sender=i, seq=k, stamp_s=t,
-                            edges=[SfmEdgeEstimate(j, 0.1, 0.5, 0.01, 3.0) for j in nb])),
-                            t))  # fmt: skip
-                out.append((f"{pre}/peer/consensus", encode(ConsensusState(sender=i, seq=k,
-                            stamp_s=t, states=[ConsensusEntry(name, [0.1] * n, [0.2] * n)
-                                               for name in ("e", "lambda", "w")])), t))  # fmt: skip
+                tick.append(SfmEstimate(sender=i, seq=k, stamp_s=t,
+                            edges=[SfmEdgeEstimate(j, 0.1, 0.5, 0.01, 3.0) for j in nb]))  # fmt: skip
+                tick.append(ConsensusState(sender=i, seq=k, stamp_s=t,
+                            states=[ConsensusEntry(name, [0.1] * n, [0.2] * n)
+                                    for name in ("e", "lambda", "w")]))  # fmt: skip
+            # a tick's peer payloads in one envelope, as the daemons send them (issue 27)
+            out.append((f"{pre}/peer", pack(i, k, tick).data, t))
             if k % 5 in (0, 2, 3):  # 30 Hz
                 cam = CameraBearings(sender=i, seq=k, stamp_s=t, targets=nb[:3],
                                      beta_body=[(0.6, 0.8, 0.0)] * len(nb[:3]))  # fmt: skip

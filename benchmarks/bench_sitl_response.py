@@ -50,6 +50,7 @@ from pymavlink import mavutil
 
 from messages import mavlink as mv
 from messages.codec import MessageError, decode
+from messages.envelope import sample_payloads
 from messages.peer import BearingShare, SfmEstimate
 from messages.sim import Truth
 from sim.dynamics import step_metrics
@@ -367,27 +368,22 @@ def team_run(
 
         truth_sub = ev.session.declare_subscriber(f"bf/{fleet}/*/truth", on_truth)
 
-        def on_sfm(sample: Any) -> None:
+        def on_peer(sample: Any) -> None:  # a daemon's peer envelope (messages.envelope)
             try:
-                m = decode(sample.payload.to_bytes(), SfmEstimate)
+                got = sample_payloads(str(sample.key_expr), sample.payload.to_bytes(),
+                                      kinds=("sfm", "bearings"))  # fmt: skip
             except MessageError:
                 return
-            for e in m.edges:
-                sfm_rows.append((m.stamp_s, m.sender, e.peer, e.chi_hat_inv_m, e.excitation,
-                                 e.e_folds))  # fmt: skip
+            for m in got.payloads:
+                if isinstance(m, SfmEstimate):
+                    for e in m.edges:
+                        sfm_rows.append((m.stamp_s, m.sender, e.peer, e.chi_hat_inv_m,
+                                         e.excitation, e.e_folds))  # fmt: skip
+                elif isinstance(m, BearingShare):
+                    for b in m.bearings:
+                        bearing_rows.append((m.stamp_s, m.sender, b.target, *b.beta_body))
 
-        def on_bearings(sample: Any) -> None:
-            try:
-                m = decode(sample.payload.to_bytes(), BearingShare)
-            except MessageError:
-                return
-            for b in m.bearings:
-                bearing_rows.append((m.stamp_s, m.sender, b.target, *b.beta_body))
-
-        peer_subs = [
-            ev.session.declare_subscriber(f"bf/{fleet}/*/peer/sfm", on_sfm),
-            ev.session.declare_subscriber(f"bf/{fleet}/*/peer/bearings", on_bearings),
-        ]
+        peer_subs = [ev.session.declare_subscriber(f"bf/{fleet}/*/peer", on_peer)]
         t0 = None
         t_first = None
         asked = 0.0

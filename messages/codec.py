@@ -98,15 +98,29 @@ def encode(payload: Payload) -> bytes:
     (or a type whose floats the bytes may not show, :func:`_encode_plan`) runs the exact walk,
     which names the field."""
     data = _encoder.encode(payload)
-    arrays, walk = _encode_plan(type(payload))
-    if (
-        walk
-        or _HUGE_F64[0] in data
-        or _HUGE_F64[1] in data
-        or any(not np.isfinite(getattr(payload, name)).all() for name in arrays)
-    ):
+    if may_hold_nonfinite(data, (payload,)):
         _check_finite(payload, "payload")
     return data
+
+
+def encode_unchecked(payload: msgspec.Struct) -> bytes:
+    """MessagePack bytes without the finiteness check: for a caller that runs
+    :func:`may_hold_nonfinite` itself (:func:`messages.envelope.pack`)."""
+    return _encoder.encode(payload)
+
+
+def may_hold_nonfinite(data: bytes, payloads: Iterable[Payload]) -> bool:
+    """Whether ``data``, the encoding of ``payloads`` (or of a struct holding them), may hold a
+    NaN or an infinity: a non-finite float64's prefix in the bytes, a non-finite entry of a
+    float64 array, or a payload type whose floats the bytes may not show. ``False`` proves every
+    float finite; ``True`` calls for the exact walk (:func:`encode` of each payload)."""
+    if _HUGE_F64[0] in data or _HUGE_F64[1] in data:
+        return True
+    for payload in payloads:
+        arrays, walk = _encode_plan(type(payload))
+        if walk or any(not np.isfinite(getattr(payload, name)).all() for name in arrays):
+            return True
+    return False
 
 
 def decode(
@@ -120,10 +134,19 @@ def decode(
     Raises :class:`MessageError` with reason ``oversize``, ``malformed``, ``version``,
     ``nonfinite``, ``out_of_range`` (a bound of :mod:`messages.limits`) or ``unknown_sender``.
     """
+    msg = decode_struct(data, kind)
+    check_payload(msg, known_senders)
+    return msg
+
+
+def decode_struct(data: bytes | bytearray | memoryview, kind: type[P] | Any) -> P:
+    """The first half of :func:`decode`: the size bound and msgspec's decode (its bounds
+    checked in C), a failure classified by reason; :func:`check_payload` is the second half
+    (:mod:`messages.envelope` runs it on every payload inside an envelope)."""
     if len(data) > MAX_PAYLOAD_BYTES:
         raise MessageError(DropReason.OVERSIZE, f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
     try:
-        msg = _decoder(kind).decode(data)
+        return _decoder(kind).decode(data)
     except msgspec.DecodeError as exc:  # (ValidationError is a DecodeError)
         # a payload of another schema version is reported as such, not as malformed, and a
         # NaN that a range bound caught as nonfinite. Rejecting must cost about what accepting
@@ -147,6 +170,12 @@ def decode(
             if bound is not None:
                 raise MessageError(DropReason.OUT_OF_RANGE, str(exc)) from None
         raise MessageError(DropReason.MALFORMED, str(exc)) from None
+
+
+def check_payload(msg: Payload, known_senders: Collection[int] | None = None) -> None:
+    """The second half of :func:`decode` on a payload msgspec built: its schema version, the
+    floats no bound covers, the float64 arrays and (optionally) its sender; raises
+    :class:`MessageError`."""
     if msg.version != SCHEMA_VERSION:
         raise MessageError(
             DropReason.VERSION, f"schema version {msg.version}, expected {SCHEMA_VERSION}"
@@ -160,7 +189,6 @@ def decode(
     _check_arrays(msg)
     if known_senders is not None and msg.sender not in known_senders:
         raise MessageError(DropReason.UNKNOWN_SENDER, f"sender {msg.sender} is not in the fleet")
-    return msg
 
 
 @lru_cache(maxsize=64)

@@ -10,7 +10,7 @@ SIM_ENTITY = "sim"
 
 # Topics of one agent, ``bf/<fleet>/<id>/<topic>``.
 STATUS_TOPIC = "status"  # messages.agent.VehicleStatus, for the ground station
-PEER_TOPIC = "peer"  # messages.peer payloads, ``peer/<kind>`` (kind = the payload's tag)
+PEER_TOPIC = "peer"  # one messages.envelope.PeerEnvelope per publish tick (all peer kinds)
 ALIVE_TOPIC = "alive"  # liveliness token of a running agent
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 
@@ -35,9 +35,11 @@ def alive_key(fleet: str, agent_id: int) -> str:
     return key(fleet, agent_id, ALIVE_TOPIC)
 
 
-def peer_key(fleet: str, agent_id: int, kind: str) -> str:
-    """Key of one kind of peer payload, e.g. ``bf/alpha/3/peer/motion``."""
-    return key(fleet, agent_id, f"{PEER_TOPIC}/{kind}")
+def peer_key(fleet: str, agent_id: int) -> str:
+    """Key of an agent's peer envelopes (:mod:`messages.envelope`), e.g. ``bf/alpha/3/peer``:
+    every kind of peer payload it sends travels on it (until issue 27, each kind had its own
+    key ``.../peer/<kind>``)."""
+    return key(fleet, agent_id, PEER_TOPIC)
 
 
 def fleet_keys(fleet: str) -> str:

@@ -7,7 +7,9 @@ payload of each kind from each neighbour, so a lost message only makes data one 
 
 Per 2 ms step an agent publishes :class:`MotionShare`, :class:`LocalizationState`,
 :class:`ConsensusState`, :class:`ExcitationTable` and, if it runs reciprocal edges,
-:class:`SfmEstimate`; :class:`BearingShare` goes out at the camera rate (50 Hz).
+:class:`SfmEstimate`; :class:`BearingShare` goes out at the camera rate (50 Hz). On the wire, a
+publish tick's newest payload of each kind travels in one :class:`messages.envelope.PeerEnvelope`
+(issue 27); a receiver unpacks it into these payloads, each checked on its own.
 """
 
 from __future__ import annotations

@@ -65,4 +65,5 @@ class RigidityEigenShare(Payload, tag="peer.rigidity_eigen"):
 
 RigidityPayload = AngleLocalizationShare | RigidityEigenShare
 RIGIDITY_KINDS = ("angle_localization", "rigidity_eigen")
-"""Their key kinds (``bf/<fleet>/<id>/peer/<kind>``, the tags without ``peer.``)."""
+"""Their kinds (the tags without ``peer.``: :func:`messages.envelope.kind_of`), which a daemon
+keeps from the envelopes of agents outside its formation graph (``PeerLink(listen_kinds=...)``)."""

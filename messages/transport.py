@@ -7,6 +7,7 @@ gossip scouting then spreads the rest. A router (``zenohd``) or TLS is configura
 
 The transport lease is shortened from Zenoh's 10 s default so that a killed process loses its
 liveliness tokens within about a second, which is what lets agents drop a dead peer within 2 s.
+Zenoh's shared-memory transport is off (:data:`SHARED_MEMORY`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,13 @@ CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_
 """How often a lost connection to a configured endpoint is retried: from 0.25 s, at most every
 1 s (Zenoh's default backs off to 4 s). With the 1 s lease a daemon stalled for a few seconds
 loses every link; with the default it could wait 4 s more for one peer after it resumed."""
+
+SHARED_MEMORY = False
+"""Zenoh's shared-memory transport (on by default in Zenoh 1.x). The fleet's processes run on
+different computers, and on one (the demo) the first payload over its 3 KiB threshold makes a
+session map a shared-memory pool: a peer envelope of 10 vehicles (3.0-3.5 KB, issue 27) grew
+every daemon from 72 to 270 MB resident (46 MB for two sessions in a bare test). ``extra``
+(``transport/shared_memory/enabled``) or a configuration file turns it back on."""
 
 
 @dataclass(frozen=True)
@@ -174,6 +182,7 @@ def _build_config(zenoh: Any, settings: ZenohSettings) -> Any:
     config.insert_json5("transport/link/tx/lease", json.dumps(settings.lease_ms))
     config.insert_json5("transport/link/tx/keep_alive", json.dumps(KEEP_ALIVE_PER_LEASE))
     config.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
+    config.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))
     for key, value in settings.extra.items():
         config.insert_json5(key, json.dumps(value))
     return config

@@ -1,12 +1,13 @@
 """``bearingflock gcs estimate`` live: paper 001's centralized EKF on a flying team over Zenoh.
 
 A thin shell around :class:`groundstation.gcs.ekf_loop.EkfLoop`: :class:`LiveEstimator`
-subscribes to every vehicle's odometry (``bf/<fleet>/*/peer/motion``), camera frames
-(``.../peer/bearings``) and status (``.../status``: the daemon's own estimate, for the
-cross-check); Zenoh's callbacks only queue the bytes, :meth:`LiveEstimator.pump` decodes them
-(:func:`groundstation.gcs.zenoh_listener.classify`: undecodable or mis-addressed samples are
-counted by reason) and feeds the loop in the caller's thread. The simulator's truth is never
-subscribed to. :func:`render` draws the loop's summary as a rich table (like ``gcs monitor``).
+subscribes to every vehicle's peer envelopes (``bf/<fleet>/*/peer``, :mod:`messages.envelope`:
+its odometry ``MotionShare`` and camera frames ``BearingShare`` among them) and status
+(``.../status``: the daemon's own estimate, for the cross-check); Zenoh's callbacks only queue
+the bytes, :meth:`LiveEstimator.pump` decodes them
+(:func:`groundstation.gcs.zenoh_listener.classify_all`: undecodable or mis-addressed samples
+and payloads are counted by reason) and feeds the loop in the caller's thread. The
+simulator's truth is never subscribed to. :func:`render` draws the loop's summary as a rich table (like ``gcs monitor``).
 """
 
 from __future__ import annotations
@@ -18,20 +19,15 @@ from collections.abc import Callable
 from typing import Any
 
 from groundstation.gcs.ekf_loop import EkfLoop
-from groundstation.gcs.zenoh_listener import classify
+from groundstation.gcs.zenoh_listener import classify_all
 from messages.agent import VehicleStatus
 from messages.codec import MessageError
 from messages.keys import PEER_TOPIC, STATUS_TOPIC, topic_keys
 from messages.peer import BearingShare, LocalizationState, MotionShare
 
-TOPICS = (
-    *(  # as the daemons publish them: the payload's tag without "peer."
-        f"{PEER_TOPIC}/{t.__struct_config__.tag.removeprefix('peer.')}"
-        for t in (MotionShare, BearingShare)
-    ),
-    STATUS_TOPIC,
-)
-"""What the estimator subscribes to, per vehicle: ``peer/motion``, ``peer/bearings``, ``status``."""
+TOPICS = (PEER_TOPIC, STATUS_TOPIC)
+"""What the estimator subscribes to, per vehicle: its peer envelopes (it keeps ``MotionShare``,
+``BearingShare`` and ``LocalizationState``) and its status."""
 MAX_QUEUE = 100_000
 """Samples waiting to be processed; beyond, new ones are counted ``overflow`` and dropped."""
 
@@ -111,11 +107,15 @@ class LiveEstimator:
     def _process(self, key: str, data: bytes) -> None:
         self.received += 1
         try:
-            d = classify(self.fleet, key, data)
+            decoded, errors = classify_all(self.fleet, key, data)
         except MessageError as exc:
+            decoded, errors = [], [exc]
+        for exc in errors:
             self.loop.count(f"undecodable_{exc.reason}")
-            return
-        p = d.payload
+        for d in decoded:
+            self._use(d.payload)
+
+    def _use(self, p: object) -> None:
         if isinstance(p, MotionShare):
             self.loop.add_motion(p)
         elif isinstance(p, BearingShare):

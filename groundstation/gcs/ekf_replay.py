@@ -3,6 +3,7 @@
 Reads the Zenoh samples a ``gcs record`` file holds (:func:`groundstation.gcs.record.read_recording`):
 every vehicle's odometry (``peer.motion``: body velocity and yaw rate, :class:`messages.peer.MotionShare`)
 and camera frames (``peer.bearings``: body-frame bearings, :class:`messages.peer.BearingShare`),
+from its peer envelopes (:mod:`messages.envelope`; or single payloads, in older recordings),
 and the simulator's ``truth`` when present (the sample nearest the final estimate's time). The vehicles are ``R^3 x S^1`` multicopters (the
 bearings are levelled, the rates are yaw rates), a special case of the filter's ``SE(3)``
 model with ``w = (0, 0, yaw rate)``. The vehicle with the lowest id is the reference (it moves:
@@ -29,7 +30,7 @@ import numpy as np
 
 from groundstation.gcs.ekf_loop import EkfLoop, EkfLoopConfig
 from groundstation.gcs.record import ZENOH_ENCODING, read_recording
-from groundstation.gcs.schemas import decode_sample
+from groundstation.gcs.schemas import decode_payloads
 from messages.peer import BearingShare, MotionShare
 from messages.sim import Truth
 from onboard.estimation.se3_ekf import Se3EkfState
@@ -153,17 +154,18 @@ def replay_estimate(path: str | Path, cfg: ReplayConfig | None = None) -> Replay
     for rec in read_recording(path).records:
         if rec.encoding != ZENOH_ENCODING:
             continue
-        payload, reason = decode_sample(rec.data)
-        if payload is None:
+        payloads, reasons = decode_payloads(rec.data)
+        for reason in reasons:
             _count(counts, f"undecodable_{reason}")
-        elif isinstance(payload, MotionShare):
-            motions.append(payload)
-        elif isinstance(payload, BearingShare):
-            frames.append(payload)
-        elif isinstance(payload, Truth):
-            truth_log.setdefault(payload.sender, []).append(
-                (payload.stamp_s, np.array(payload.p_ned, dtype=float), float(payload.yaw_rad))
-            )
+        for payload in payloads:
+            if isinstance(payload, MotionShare):
+                motions.append(payload)
+            elif isinstance(payload, BearingShare):
+                frames.append(payload)
+            elif isinstance(payload, Truth):
+                truth_log.setdefault(payload.sender, []).append(
+                    (payload.stamp_s, np.array(payload.p_ned, dtype=float), float(payload.yaw_rad))
+                )
     ids = sorted({m.sender for m in motions})
     result = ReplayResult(ids=ids, state=None, counts=counts, truth_log=truth_log)
     if len(ids) < 2:

@@ -38,6 +38,7 @@ MAVLINK_SCHEMA_PREFIX = "mavlink."
 _MESSAGE_MODULES = (
     "messages.agent",
     "messages.command",
+    "messages.envelope",
     "messages.image",
     "messages.peer",
     "messages.rigidity",
@@ -110,8 +111,11 @@ _msgpack_untyped = msgspec.msgpack.Decoder()
 
 def decode_sample(data: bytes) -> tuple[Payload | None, str]:
     """The payload these wire bytes hold and ``""``, or ``None`` and why they are not a valid
-    payload (the codec's reason word, or ``unknown_type``)."""
+    payload (the codec's reason word, or ``unknown_type``). A peer envelope is valid only if
+    every payload in it is (:func:`messages.envelope.unpack`): a recorder keeps any other
+    verbatim; :func:`decode_payloads` keeps its good payloads."""
     from messages.codec import MessageError, decode
+    from messages.envelope import PeerEnvelope, unpack
 
     try:
         raw = _msgpack_untyped.decode(data)
@@ -121,9 +125,34 @@ def decode_sample(data: bytes) -> tuple[Payload | None, str]:
     if cls is None:
         return None, "unknown_type"
     try:
+        if cls is PeerEnvelope:
+            got = unpack(data)
+            if got.errors:
+                return None, got.errors[0].reason
+            return got.envelope(), ""
         return decode(data, cls), ""
     except MessageError as exc:
         return None, exc.reason
+
+
+def decode_payloads(data: bytes) -> tuple[list[Payload], list[str]]:
+    """The payloads these wire bytes hold: one, or a peer envelope's valid ones (each checked
+    on its own), and the reason words of what was not valid."""
+    from messages.codec import MessageError
+    from messages.envelope import PeerEnvelope, unpack
+
+    try:
+        raw = _msgpack_untyped.decode(data)
+    except msgspec.DecodeError:
+        return [], ["malformed"]
+    if isinstance(raw, dict) and raw.get("type") == PeerEnvelope.__struct_config__.tag:
+        try:
+            got = unpack(data)
+        except MessageError as exc:
+            return [], [exc.reason]
+        return got.payloads, [e.reason for e in got.errors]
+    payload, reason = decode_sample(data)
+    return ([payload], []) if payload is not None else ([], [reason])
 
 
 def payload_json(payload: Payload) -> bytes:

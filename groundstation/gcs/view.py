@@ -10,8 +10,8 @@ https://docs.foxglove.dev/docs/sdk); it serves, JSON-encoded with JSON Schemas:
   edges coloured by rigidity weight, camera frusta, alarms on the labels;
 * every vehicle's ``status``, ``truth`` and ``camera/bearings`` under its Zenoh key, with the
   schemas of ``gcs record`` (:mod:`groundstation.gcs.schemas`), so Foxglove plots the scale
-  estimate or the rigidity eigenvalue live; peer traffic (50 Hz per kind and vehicle) is left
-  out;
+  estimate or the rigidity eigenvalue live; peer traffic (an envelope of every kind, 50 Hz
+  per vehicle) is left out;
 * the active alarms as the server's status messages (Foxglove's problems list), one per
   vehicle, removed when they clear.
 

@@ -5,8 +5,12 @@ liveliness tokens ``bf/<fleet>/<id>/alive``.
 :class:`~messages.codec.MessageError` whose ``reason`` is counted: the codec's reasons
 (``malformed``, ``version``, ``nonfinite``, ``oversize``) plus ``foreign`` (a key or topic that
 is not ours), ``wrong_fleet`` and ``sender_mismatch`` (a payload whose sender is not the agent
-its key names). :class:`ZenohState` folds samples into one :class:`AgentTelemetry` per agent;
-both are pure. :class:`ZenohListener` wires them to a session under a lock.
+its key names). A peer envelope (``bf/<fleet>/<id>/peer``, :mod:`messages.envelope`) holds a
+tick's peer payloads: :func:`classify_all` unpacks it into one :class:`Decoded` per payload,
+topic ``peer/<kind>`` (the key each kind had before envelopes), and an error per bad payload;
+``peer/<kind>`` samples of older recordings are still read. :class:`ZenohState` folds samples
+into one :class:`AgentTelemetry` per agent; both are pure. :class:`ZenohListener` wires them to
+a session under a lock.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from messages.command import (
     FormationChange,
     LeaderDrive,
 )
+from messages.envelope import PeerEnvelope, kind_of, unpack
 from messages.keys import ALIVE_TOPIC, PEER_TOPIC, STATUS_TOPIC, fleet_keys, is_sim_key, parse_key
 from messages.peer import PeerPayload
 from messages.sim import CAMERA_TOPIC, TRUTH_TOPIC, CameraBearings, SimClock, SimStep, Truth
@@ -43,7 +48,8 @@ TOPIC_TYPES: dict[str, Any] = {
     CAMERA_TOPIC: CameraBearings,
     TRUTH_TOPIC: Truth,
 }
-"""Payload type of each per-agent topic (``peer/<kind>`` topics carry :data:`PeerPayload`)."""
+"""Payload type of each per-agent topic (``peer`` carries a :class:`PeerEnvelope`, the
+``peer/<kind>`` topics of recordings made before envelopes one :data:`PeerPayload`)."""
 SIM_TOPIC_TYPES: dict[str, Any] = {"clock": SimClock, "step": SimStep}
 
 SampleHook = Callable[[str, bytes, float], None]
@@ -66,13 +72,41 @@ def payload_type(topic: str) -> Any:
     """The payload type of a per-agent topic; ``None`` if the topic is not one we know."""
     if topic in TOPIC_TYPES:
         return TOPIC_TYPES[topic]
+    if topic == PEER_TOPIC:
+        return PeerEnvelope
     if topic.startswith(PEER_TOPIC + "/") and topic.count("/") == 1:
         return PeerPayload
     return None
 
 
 def classify(fleet: str, key: str, data: bytes) -> Decoded:
-    """Decode one sample of fleet ``fleet``; raises :class:`MessageError` (see module doc)."""
+    """Decode one sample of fleet ``fleet``; raises :class:`MessageError` (see module doc). A
+    peer envelope is one :class:`Decoded` (its payload the :class:`PeerEnvelope`) only if every
+    payload in it is valid, else the first bad one's error is raised: :func:`classify_all`
+    keeps the good ones."""
+    agent_id, topic, kind = _locate(fleet, key)
+    if kind is PeerEnvelope:
+        got = unpack(data, sender=agent_id)
+        if got.errors:
+            raise got.errors[0]
+        return Decoded(agent_id, topic, got.envelope())
+    return _single(key, agent_id, topic, decode(data, kind))
+
+
+def classify_all(fleet: str, key: str, data: bytes) -> tuple[list[Decoded], list[MessageError]]:
+    """Decode one sample of fleet ``fleet`` into what it holds: one :class:`Decoded`, or for a
+    peer envelope one per valid payload (topic ``peer/<kind>``) and a :class:`MessageError` per
+    invalid one. Raises :class:`MessageError` when the sample itself is bad (module doc)."""
+    agent_id, topic, kind = _locate(fleet, key)
+    if kind is PeerEnvelope:
+        got = unpack(data, sender=agent_id)
+        out = [Decoded(agent_id, f"{PEER_TOPIC}/{kind_of(p)}", p) for p in got.payloads]
+        return out, got.errors
+    return [_single(key, agent_id, topic, decode(data, kind))], []
+
+
+def _locate(fleet: str, key: str) -> tuple[int | None, str, Any]:
+    """The agent (``None`` for the simulator's keys), topic and payload type of a key."""
     parts = key.split("/", 3)
     if len(parts) == 4 and parts[0] == "bf" and parts[1] != fleet:
         raise MessageError(DropReason.WRONG_FLEET, f"{key} is not under fleet {fleet!r}")
@@ -80,7 +114,7 @@ def classify(fleet: str, key: str, data: bytes) -> Decoded:
         kind = SIM_TOPIC_TYPES.get(parts[3])
         if kind is None:
             raise MessageError(DropReason.FOREIGN, f"unknown simulator topic in {key}")
-        return Decoded(None, parts[3], decode(data, kind))
+        return None, parts[3], kind
     try:
         _fleet, agent_id, topic = parse_key(key)
     except ValueError as exc:
@@ -88,7 +122,13 @@ def classify(fleet: str, key: str, data: bytes) -> Decoded:
     kind = payload_type(topic)
     if kind is None:
         raise MessageError(DropReason.FOREIGN, f"unknown topic {topic!r} in {key}")
-    payload = decode(data, kind)
+    return agent_id, topic, kind
+
+
+def _single(key: str, agent_id: int | None, topic: str, payload: Any) -> Decoded:
+    """A sample holding one payload: its owner must be the agent its key names."""
+    if agent_id is None:
+        return Decoded(None, topic, payload)
     owner = (
         payload.target
         if isinstance(payload, FleetCommand | FormationChange | LeaderDrive)
@@ -157,19 +197,26 @@ class ZenohState:
             a = self.agents[agent_id] = AgentTelemetry(agent_id, t_s)
         return a
 
-    def fold_sample(self, key: str, data: bytes, t_s: float) -> Decoded | None:
-        """Fold one sample received at ``t_s``; ``None`` if it was dropped (and counted)."""
+    def fold_sample(self, key: str, data: bytes, t_s: float) -> list[Decoded]:
+        """Fold one sample received at ``t_s``: what it held (a peer envelope's payloads one by
+        one, :func:`classify_all`); what was dropped is counted by reason."""
         try:
-            d = classify(self.fleet, key, data)
+            decoded, errors = classify_all(self.fleet, key, data)
         except MessageError as exc:
+            decoded, errors = [], [exc]
+        for exc in errors:
             self.count(exc.reason)
             self.last_error = f"{key}: {exc}"[:200]
-            return None
+        for d in decoded:
+            self._fold(d, t_s)
+        return decoded
+
+    def _fold(self, d: Decoded, t_s: float) -> None:
         self.topics[d.topic] = self.topics.get(d.topic, 0) + 1
         if d.agent_id is None:
             if isinstance(d.payload, SimClock):
                 self.clock = d.payload
-            return d
+            return
         if isinstance(d.payload, VehicleStatus):
             a = self.agent(d.agent_id, t_s)
             a.status, a.status_s = d.payload, t_s
@@ -179,7 +226,6 @@ class ZenohState:
             del self.acks[: max(0, len(self.acks) - self.max_acks)]
         # commands are ours (or another ground station's); camera, truth and peer samples are
         # counted by topic: only a status or a liveliness token makes an agent appear
-        return d
 
     def fold_alive(self, key: str, alive: bool, t_s: float) -> int | None:
         agent_id = alive_agent(self.fleet, key)

@@ -1,14 +1,16 @@
 """The peer link: one Zenoh session per daemon, and everything the daemon says and hears on it.
 
-Keys (``messages.keys``): peer payloads on ``bf/<fleet>/<id>/peer/<kind>``, a liveliness token
+Keys (``messages.keys``): peer payloads on ``bf/<fleet>/<id>/peer``, one envelope per publish
+tick that holds the newest payload of each kind (:mod:`messages.envelope`), a liveliness token
 ``bf/<fleet>/<id>/alive``, the status for the ground station on ``bf/<fleet>/<id>/status``,
 commands on ``bf/<fleet>/<id>/command`` (answered on ``.../command/ack``), formation changes on
 ``.../command/formation`` and leader drives on ``.../command/leader``. Zenoh calls back on
 its own threads; the link queues what arrives and the agent loop drains it.
 
 Bad input never reaches the agent core: every sample is decoded and validated
-(``messages.codec``), its sender must be a fleet member and match the key it came on, and a
-failure is counted by reason and logged once per reason (docs/design.md).
+(``messages.codec``; an envelope's payloads each on their own, :func:`messages.envelope.unpack`),
+its sender (and every payload's in an envelope) must be a fleet member and match the key it came
+on, and a failure is counted by reason and logged once per reason (docs/design.md).
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ from messages.command import (
     FormationChange,
     LeaderDrive,
 )
-from messages.keys import PEER_TOPIC, STATUS_TOPIC, alive_key, key, parse_key
-from messages.peer import PeerPayload
+from messages.envelope import pack, unpack
+from messages.keys import STATUS_TOPIC, alive_key, key, parse_key, peer_key
 from messages.transport import ZenohSettings, open_session
 from messages.vocabulary import DropReason, DropScope, drop_key
 
@@ -72,9 +74,11 @@ class PeerLink:
     ``listen_to`` the agents whose peer payloads it subscribes to (its graph neighbours; default
     every other agent), so nobody decodes traffic it would drop anyway; ``listen_kinds`` adds
     single kinds of payload from further agents (``(agent, kind)``, e.g. the rigidity layer's
-    ``rigidity_eigen`` from agents outside the formation graph). ``inject_loss`` drops
-    that fraction of the received peer samples at random (fault injection, counted as
-    ``injected_loss``), seeded by the agent id."""
+    ``rigidity_eigen`` from agents outside the formation graph): their envelopes are
+    subscribed to and only those kinds kept. ``inject_loss`` drops that fraction of the
+    received envelopes at random (fault injection, counted as ``injected_loss``; all of a
+    tick's kinds are lost together, as a lost network packet loses them), seeded by the agent
+    id."""
 
     def __init__(
         self,
@@ -106,23 +110,24 @@ class PeerLink:
         self._handles: list[Any] = []
         self._publishers: dict[str, Any] = {}
         self._ack_seq = 0
+        self._envelope_seq = 0
         # the codec as attributes, so the CPU profile (onboard/daemon/profile) can time them
-        self.decode = decode
-        self.encode = encode
+        self.decode = unpack
+        self.encode = pack
         self._token = self.session.liveliness().declare_token(alive_key(fleet, agent_id))
         # one subscription per sender, whose handler knows the sender: no key parsing per
-        # sample (the key's agent id is the subscription's), and never our own echo
+        # sample (the key's agent id is the subscription's), and never our own echo; a sender
+        # heard only for some kinds (listen_kinds) keeps only those
         peers = self.listen_to if listen_to is not None else self.known
-        for j in sorted(peers - {agent_id}):
-            self._handles.append(
-                self.session.declare_subscriber(key(fleet, j, PEER_TOPIC) + "/**", self._on_peer(j))
-            )
-        for j, kind in sorted(set(listen_kinds)):
-            if j == agent_id:
-                continue
+        kinds: dict[int, set[str] | None] = dict.fromkeys(peers - {agent_id})
+        for j, kind in listen_kinds:
+            if j != agent_id and j not in peers:
+                kinds.setdefault(j, set()).add(kind)  # type: ignore[union-attr]
+        for j in sorted(kinds):
+            only = kinds[j]
             self._handles.append(
                 self.session.declare_subscriber(
-                    key(fleet, j, f"{PEER_TOPIC}/{kind}"), self._on_peer(j)
+                    peer_key(fleet, j), self._on_peer(j, frozenset(only) if only else None)
                 )
             )
         self._handles.append(
@@ -147,8 +152,8 @@ class PeerLink:
         """Extra subscription on this session (bearing sources, the simulator's clock)."""
         self._handles.append(self.session.declare_subscriber(key_expr, handler))
 
-    def _on_peer(self, key_id: int) -> Callable[[Any], None]:
-        """The handler of the peer payloads on agent ``key_id``'s keys."""
+    def _on_peer(self, key_id: int, kinds: frozenset[str] | None = None) -> Callable[[Any], None]:
+        """The handler of the peer envelopes on agent ``key_id``'s key (only ``kinds`` kept)."""
 
         def on_sample(sample: Any) -> None:
             if self.inject_loss > 0.0:
@@ -158,17 +163,17 @@ class PeerLink:
                     self.drops.drop(DropReason.INJECTED_LOSS, "fault injection (zenoh.inject_loss)")
                     return
             try:
-                msg = self.decode(sample.payload.to_bytes(), PeerPayload, known_senders=self.known)
+                got = self.decode(
+                    sample.payload.to_bytes(), sender=key_id, known_senders=self.known, kinds=kinds
+                )
             except MessageError as exc:
                 self.drops.drop(exc.reason, f"{sample.key_expr}: {exc.detail}")
                 return
-            if msg.sender != key_id:
-                self.drops.drop(
-                    DropReason.SENDER_MISMATCH, f"{sample.key_expr}: sender {msg.sender}"
-                )
-                return
-            with self._lock:
-                self._inbox.append(msg)
+            for exc in got.errors:  # one bad payload in an envelope: its siblings still count
+                self.drops.drop(exc.reason, f"{sample.key_expr}: {exc.detail}")
+            if got.payloads:
+                with self._lock:
+                    self._inbox.extend(got.payloads)
 
         return on_sample
 
@@ -244,21 +249,17 @@ class PeerLink:
             return {a for a in self._alive if a != self.id and a in self.known}
 
     def publish(self, payloads: Iterable[Payload]) -> int:
-        """Publish peer payloads, keeping only the newest of each kind; returns how many."""
-        latest: dict[str, Payload] = {}
-        for p in payloads:
-            latest[type(p).__struct_config__.tag] = p  # type: ignore[attr-defined]
-        sent = 0
-        for tag, p in latest.items():
-            kind = tag.removeprefix("peer.")
-            try:
-                data = self.encode(p)
-            except MessageError as exc:  # never send a non-finite estimate to the fleet
-                self.drops.drop(exc.reason, f"{tag}: {exc.detail}", DropScope.OWN)
-                continue
-            self._put(key(self.fleet, self.id, f"{PEER_TOPIC}/{kind}"), data)
-            sent += 1
-        return sent
+        """Publish peer payloads in one envelope, keeping only the newest of each kind
+        (:func:`messages.envelope.pack`); returns how many went out."""
+        self._envelope_seq += 1
+        packed = self.encode(self.id, self._envelope_seq, payloads)
+        for p, exc in packed.rejected:  # never send a non-finite estimate to the fleet
+            tag = p.__struct_config__.tag  # type: ignore[attr-defined]
+            self.drops.drop(exc.reason, f"{tag}: {exc.detail}", DropScope.OWN)
+        if packed.data is None:
+            return 0
+        self._put(peer_key(self.fleet, self.id), packed.data)
+        return len(packed.payloads)
 
     def publish_status(self, status: Payload) -> None:
         try:

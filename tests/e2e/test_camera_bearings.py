@@ -1,7 +1,7 @@
 """Bearings from pixels, end to end: the simulator renders each vehicle's camera and publishes
 the images over real Zenoh; three real daemons (``bearingflock agent --bearings camera``) run the
 camera pipeline, level the bearings with their autopilot's attitude and fly on them. The bearings
-each agent core shares with its peers (``peer/bearings``) match the simulator's truth."""
+each agent core shares with its peers (``BearingShare``, in its peer envelope) match the simulator's truth."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import pytest
 from groundstation.demo import DemoPorts, Evaluator, Processes, plan_formation, write_demo_files
 from groundstation.demo_cli import write_camera_rig
 from messages.codec import MessageError, decode
+from messages.envelope import sample_payloads
 from messages.peer import BearingShare
 from messages.sim import Truth
 from messages.transport import ZenohSettings, loopback_endpoint
@@ -35,17 +36,19 @@ class Recorder:
         self.truth: dict[int, list[Truth]] = {k: [] for k in range(N)}
         s = ev.session
         self.subs = [
-            s.declare_subscriber(f"bf/{fleet}/*/peer/bearings", self._on_share),
+            s.declare_subscriber(f"bf/{fleet}/*/peer", self._on_share),
             s.declare_subscriber(f"bf/{fleet}/*/truth", self._on_truth),
         ]
 
     def _on_share(self, sample) -> None:
-        try:
-            msg = decode(sample.payload.to_bytes(), BearingShare)
+        try:  # the agent's peer envelope: keep its BearingShare
+            got = sample_payloads(
+                str(sample.key_expr), sample.payload.to_bytes(), kinds={"bearings"}
+            )
         except MessageError:
             return
         with self.lock:
-            self.shares.append(msg)
+            self.shares.extend(got.payloads)
 
     def _on_truth(self, sample) -> None:
         msg = decode(sample.payload.to_bytes(), Truth)

@@ -2,7 +2,7 @@
 vehicle's camera over real Zenoh; three real daemons fly paper 002's localization
 (``[core] localization = "paper002"``, ``bearings = "camera"``), and their camera pipeline's disc
 ranges reach its eq. 22 range terms (``AgentStatus.range_terms``). The scales ``lambda_ij`` the
-agents share (``peer/gradloc``) match the simulator's true distances."""
+agents share (``GradientLocalizationShare``, in their peer envelopes) match the simulator's true distances."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import pytest
 from groundstation.demo import DemoPorts, Evaluator, Processes, plan_formation, write_demo_files
 from groundstation.demo_cli import write_camera_rig
 from messages.codec import MessageError, decode
+from messages.envelope import sample_payloads
 from messages.peer import GradientLocalizationShare
 from messages.sim import Truth
 from messages.transport import ZenohSettings, loopback_endpoint
@@ -35,17 +36,19 @@ class Recorder:
         self.truth: dict[int, list[Truth]] = {k: [] for k in range(N)}
         s = ev.session
         self.subs = [
-            s.declare_subscriber(f"bf/{fleet}/*/peer/gradloc", self._on_share),
+            s.declare_subscriber(f"bf/{fleet}/*/peer", self._on_share),
             s.declare_subscriber(f"bf/{fleet}/*/truth", self._on_truth),
         ]
 
     def _on_share(self, sample) -> None:
-        try:
-            msg = decode(sample.payload.to_bytes(), GradientLocalizationShare)
+        try:  # the agent's peer envelope: keep its GradientLocalizationShare
+            got = sample_payloads(
+                str(sample.key_expr), sample.payload.to_bytes(), kinds={"gradloc"}
+            )
         except MessageError:
             return
         with self.lock:
-            self.shares.append(msg)
+            self.shares.extend(got.payloads)
 
     def _on_truth(self, sample) -> None:
         msg = decode(sample.payload.to_bytes(), Truth)

@@ -63,14 +63,21 @@ def fly_survive_bad_input_and_faults(fleet, wait_for) -> None:
     assert floor_alarm_seen == set(range(N))
     assert clock_alarms == []
 
-    # bad input on the peer keys and on an agent's MAVLink port
+    # bad input on the peer keys and on an agent's MAVLink port: a broken envelope, and in
+    # envelopes of vehicle 1 a NaN, a vehicle not in the fleet and vehicle 2 (forged)
+    def envelope(payload: dict) -> bytes:
+        return msgspec.msgpack.encode({"type": "peer.envelope", "sender": 1, "payloads": [payload]})
+
     bad = [
-        (f"bf/{name}/1/peer/motion", b"\xc1 not msgpack"),
-        (f"bf/{name}/1/peer/motion", msgspec.msgpack.encode(
+        (f"bf/{name}/1/peer", b"\xc1 not msgpack"),
+        (f"bf/{name}/1/peer", envelope(
             {"type": "peer.motion", "sender": 1, "v_body": [float("nan"), 0.0, 0.0],
              "yaw_rate_rad_s": 0.0, "yaw_rad": 0.0})),
-        (f"bf/{name}/1/peer/motion", msgspec.msgpack.encode(  # claims a vehicle not in the fleet
+        (f"bf/{name}/1/peer", envelope(
             {"type": "peer.motion", "sender": 9, "v_body": [0.0, 0.0, 0.0],
+             "yaw_rate_rad_s": 0.0, "yaw_rad": 0.0})),
+        (f"bf/{name}/1/peer", envelope(
+            {"type": "peer.motion", "sender": 2, "v_body": [0.0, 0.0, 0.0],
              "yaw_rate_rad_s": 0.0, "yaw_rad": 0.0})),
     ]  # fmt: skip
     for k, data in bad:
@@ -84,9 +91,10 @@ def fly_survive_bad_input_and_faults(fleet, wait_for) -> None:
             d.get("malformed", 0) >= 1
             and d.get("nonfinite", 0) >= 1
             and d.get("unknown_sender", 0) >= 1
+            and d.get("sender_mismatch", 0) >= 1
         )
 
-    wait_for(counted, 5.0, "agent 0 to count the three bad payloads", ev)
+    wait_for(counted, 5.0, "agent 0 to count the four bad payloads", ev)
     assert not procs.dead()
 
     # kill agent 2: its peers notice within 2 s (+ status period), its autopilot fails safe

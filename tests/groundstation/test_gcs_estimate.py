@@ -5,11 +5,14 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from groundstation.cli import app
 from groundstation.gcs.record import Recorder
 from messages.codec import encode
+from messages.envelope import kind_of, pack
+from messages.keys import peer_key
 from messages.peer import BearingShare, MotionShare, TargetBearing
 from messages.sim import Truth
 from onboard.geometry import rot_z
@@ -44,11 +47,13 @@ def _record(
     garbage: int = 3,
     silent_after_s: float = 1e9,
     ghost: bool = False,
+    envelopes: bool = True,
 ) -> None:
     """Odometry at 25 Hz, camera frames and truth at 6.25 Hz, as a recorder writes them.
 
     Vehicle 3's odometry stops after ``silent_after_s``; ``ghost`` adds a bearing to vehicle 9,
-    which sends nothing."""
+    which sends nothing. ``envelopes``: a tick's payloads in one peer envelope, as the daemons
+    publish them (issue 27); else one sample per payload, as recordings made before."""
     rec = Recorder(path, "alpha", tlog=False)
     dt = 0.04
     for k in range(int(duration_s / dt)):
@@ -57,6 +62,7 @@ def _record(
         p, v = np.array(p), np.array(v)
         wall = 1000.0 + t
         for a, i in enumerate(IDS):
+            tick = []
             r = rot_z(yaw[a])
             vb = [float(x) for x in r.T @ v[a]]
             motion = MotionShare(
@@ -64,7 +70,7 @@ def _record(
                 yaw_rad=yaw[a],
             )  # fmt: skip
             if i != 3 or t < silent_after_s:
-                rec.zenoh_sample(f"bf/alpha/{i}/peer/peer.motion", encode(motion), wall)
+                tick.append(motion)
             if k % 4 == 0:
                 others = [b for b in range(3) if b != a]
                 beta = [r.T @ (p[b] - p[a]) / np.linalg.norm(p[b] - p[a]) for b in others]
@@ -76,7 +82,11 @@ def _record(
                     ]
                     + ([TargetBearing(target=9, beta_body=(1.0, 0.0, 0.0))] if ghost else []),
                 )  # fmt: skip
-                rec.zenoh_sample(f"bf/alpha/{i}/peer/peer.bearings", encode(frame), wall)
+                tick.append(frame)
+            if envelopes and tick:
+                rec.zenoh_sample(peer_key("alpha", i), pack(i, k, tick).data, wall)
+            for m in [] if envelopes else tick:
+                rec.zenoh_sample(f"bf/alpha/{i}/peer/{kind_of(m)}", encode(m), wall)
             if k % 4 == 0:
                 truth = Truth(
                     sender=i, seq=k, stamp_s=t, p_ned=tuple(p[a].tolist()), v_ned=tuple(v[a].tolist()),
@@ -84,13 +94,14 @@ def _record(
                 )  # fmt: skip
                 rec.zenoh_sample(f"bf/alpha/{i}/truth", encode(truth), wall)
     for _ in range(garbage):
-        rec.zenoh_sample("bf/alpha/1/peer/peer.motion", b"\xc1 not msgpack", 1000.0)
+        rec.zenoh_sample(peer_key("alpha", 1), b"\xc1 not msgpack", 1000.0)
     rec.close()
 
 
-def test_replay_recovers_scale_and_poses_of_a_moving_team(tmp_path):
+@pytest.mark.parametrize("envelopes", [True, False], ids=["envelopes", "one_per_kind"])
+def test_replay_recovers_scale_and_poses_of_a_moving_team(tmp_path, envelopes):
     path = tmp_path / "flight.mcap"
-    _record(path)
+    _record(path, envelopes=envelopes)
     res = CliRunner().invoke(app, ["gcs", "estimate", "--replay", str(path), "--json"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout.strip().splitlines()[-1])

@@ -17,6 +17,7 @@ from groundstation.gcs.ekf_live import LiveEstimator, render
 from groundstation.gcs.ekf_loop import EkfLoop
 from messages.agent import AgentStatus, VehicleStatus
 from messages.codec import encode
+from messages.envelope import pack
 from messages.keys import STATUS_TOPIC, key, peer_key
 from messages.peer import BearingShare, MotionShare
 from messages.transport import ZenohSettings, loopback_endpoint, open_session
@@ -31,10 +32,10 @@ class _Publisher:
         self.session, self.fleet = session, fleet
 
     def add_motion(self, m: MotionShare) -> None:
-        self.session.put(peer_key(self.fleet, m.sender, "motion"), encode(m))
+        self.session.put(peer_key(self.fleet, m.sender), pack(m.sender, m.seq, [m]).data)
 
     def add_frame(self, f: BearingShare) -> None:
-        self.session.put(peer_key(self.fleet, f.sender, "bearings"), encode(f))
+        self.session.put(peer_key(self.fleet, f.sender), pack(f.sender, f.seq, [f]).data)
 
     def add_daemon_estimate(self, sender: int, stamp_s: float, p, yaw: float) -> None:
         agent = AgentStatus(
@@ -60,9 +61,9 @@ def test_live_estimator_feeds_the_loop_from_zenoh_and_counts_bad_samples():
         # (no fixed sleep: under load that took longer than any guess)
         deadline = time.monotonic() + 10.0
         while est.received == 0 and time.monotonic() < deadline:
-            pub_session.put("bf/alpha/1/peer/motion", b"\xc1 not msgpack")
+            pub_session.put("bf/alpha/1/peer", b"\xc1 not msgpack")
             est.pump(0.1)
-        pub_session.put(peer_key("beta", 1, "motion"), b"other fleet: not subscribed")
+        pub_session.put(peer_key("beta", 1), b"other fleet: not subscribed")
         # paced as a team publishes (each key has its own subscription, so a burst can arrive
         # frames first: the loop admits a vehicle only on a frame after its odometry)
         publisher = _Publisher(pub_session, "alpha")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as dialect
@@ -17,7 +18,9 @@ from groundstation.gcs.monitor import MonitorConfig, render, snapshot
 from groundstation.gcs.similarity import similarity_2d
 from groundstation.gcs.zenoh_listener import ZenohState, classify
 from messages import mavlink as mv
-from messages.codec import SCHEMA_VERSION, MessageError, encode
+from messages.codec import SCHEMA_VERSION, MessageError, encode, encode_unchecked
+from messages.envelope import PeerEnvelope, pack
+from messages.peer import LocalizationState, MotionShare
 from messages.sim import SimClock
 from messages.vocabulary import Alarm, alarm_text
 from tests.groundstation.standin import StandinConfig, scripted_status
@@ -152,6 +155,30 @@ def test_classify_accepts_ours_and_names_every_rejection():
     with pytest.raises(MessageError) as exc:
         classify("alpha", "bf/alpha/1/status", encode_version(SCHEMA_VERSION + 1))
     assert exc.value.reason == "version"
+
+
+def test_a_peer_envelope_is_folded_payload_by_payload():
+    motion = MotionShare(sender=1, seq=3, v_body=(0.1, 0.0, 0.0), yaw_rate_rad_s=0.0, yaw_rad=0.0)
+    loc = LocalizationState(sender=1, seq=3, p_hat_ned=(0.0, 1.0, -2.0), yaw_hat_rad=0.0)
+    good = pack(1, 1, [motion, loc]).data
+    forged = encode_unchecked(
+        PeerEnvelope(sender=1, payloads=[motion, msgspec.structs.replace(loc, sender=2)])
+    )
+    zen = ZenohState("alpha")
+    assert [d.topic for d in zen.fold_sample("bf/alpha/1/peer", good, 1.0)] == [
+        "peer/motion", "peer/localization"
+    ]  # fmt: skip
+    assert [d.payload for d in zen.fold_sample("bf/alpha/1/peer", forged, 1.1)] == [motion]
+    assert zen.fold_sample("bf/alpha/2/peer", good, 1.2) == []  # 1's envelope on 2's key
+    assert zen.topics == {"peer/motion": 2, "peer/localization": 1}
+    assert zen.counters == {"sender_mismatch": 2}
+    d = classify("alpha", "bf/alpha/1/peer", good)  # whole, for who wants the envelope
+    assert d.topic == "peer" and d.payload.payloads == [motion, loc]
+    with pytest.raises(MessageError) as exc:
+        classify("alpha", "bf/alpha/1/peer", forged)
+    assert exc.value.reason == "sender_mismatch"
+    old = classify("alpha", "bf/alpha/1/peer/motion", encode(motion))  # recordings before
+    assert (old.topic, old.payload) == ("peer/motion", motion)
 
 
 def encode_version(version: int) -> bytes:

@@ -40,7 +40,9 @@ from groundstation.gcs.record import (
 )
 from groundstation.gcs_cli import gcs_app
 from messages.codec import decode, encode
+from messages.envelope import pack, unpack
 from messages.image import Image
+from messages.peer import MotionShare
 from messages.rigidity import RigidityEigenShare
 from messages.sim import CameraBearings, SimClock, Truth
 from tests.groundstation.standin import StandinConfig, scripted_status
@@ -87,7 +89,8 @@ def write_team(path: Path, chunk_bytes: int = CHUNK_BYTES) -> Recorder:
         rec.zenoh_sample("bf/alpha/sim/clock", encode(clock), t)
     eigen = RigidityEigenShare(sender=1, lambda_hat=0.5, targets=[0], state=np.arange(4.0),
                                per_target=np.array([0.25, -1.0]), round=3)  # fmt: skip
-    rec.zenoh_sample("bf/alpha/1/peer/rigidity_eigen", encode(eigen), T0 + 1.0)
+    motion = MotionShare(sender=1, v_body=(0.5, 0.0, 0.0), yaw_rate_rad_s=0.1, yaw_rad=0.2)
+    rec.zenoh_sample("bf/alpha/1/peer", pack(1, 1, [motion, eigen]).data, T0 + 1.0)
     jpeg = Image(sender=0, width=2, height=1, data=b"\xff\xd8 not really")
     rec.zenoh_sample("bf/alpha/0/camera/image", encode(jpeg), T0 + 1.0)
     rec.zenoh_sample("bf/alpha/1/status", b"\x00broken", T0 + 2.0)
@@ -109,7 +112,7 @@ def test_every_channel_has_a_json_schema_that_validates_its_messages(tmp_path, r
     assert names["bf/alpha/sim/clock"] == "bearingflock.SimClock"
     assert names["bf/alpha/0/alive"] == "bearingflock.Liveliness"
     assert names["mavlink/2/GLOBAL_POSITION_INT"] == "mavlink.GLOBAL_POSITION_INT"
-    assert names["bf/alpha/1/peer/rigidity_eigen"] == "bearingflock.RigidityEigenShare"
+    assert names["bf/alpha/1/peer"] == "bearingflock.PeerEnvelope"
     assert names["bf/alpha/0/camera/image"] == "bearingflock.Image"
     assert names[SCENE_TOPIC] == SCENE_SCHEMA_NAME
     assert names[TRANSFORMS_TOPIC] == TRANSFORMS_SCHEMA_NAME
@@ -202,8 +205,9 @@ def test_replay_gets_the_wire_bytes_back(tmp_path):
     assert status[3].encoding == ZENOH_ENCODING
     assert status[3].data == encode(scripted_status(cfg, 0, 0.1 * 3, 3, "flying"))
     assert [r.data for r in recs if r.topic == "bf/alpha/1/status"][-1] == b"\x00broken"
-    eigen = [r.data for r in recs if r.topic == "bf/alpha/1/peer/rigidity_eigen"]
-    back = decode(eigen[0], RigidityEigenShare)
+    envelope = [r.data for r in recs if r.topic == "bf/alpha/1/peer"]
+    motion, back = unpack(envelope[0], sender=1).payloads
+    assert isinstance(motion, MotionShare) and motion.v_body == (0.5, 0.0, 0.0)
     assert back.state.tolist() == [0.0, 1.0, 2.0, 3.0] and back.per_target.tolist() == [0.25, -1]
     image = [r.data for r in recs if r.topic == "bf/alpha/0/camera/image"]
     assert decode(image[0], Image).data == b"\xff\xd8 not really"
