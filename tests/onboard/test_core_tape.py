@@ -2,51 +2,22 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
-import sim.runner as runner_mod
+from benchmarks.core_replay import record
 from messages.agent import OwnMeasurements
 from messages.codec import Payload, encode
 from onboard.core.agent import AgentCore
-from onboard.core.config import build_config
+from onboard.core.config import AgentConfig
 from onboard.daemon.tape import TapeError, TapeWriter, read_tape, replay, tape_path
-from sim.runner import RunnerConfig, run
+from sim.runner import RunnerConfig
+from sim.scenarios import P0_NED, YAW0_RAD, agent_configs
 
 
-def _flown_inputs() -> tuple[object, list[tuple[float, OwnMeasurements, list[Payload]]]]:
-    n = 3
-    edges = tuple((i, j) for i in range(n) for j in range(n) if i != j)
-    rng = np.random.default_rng(4)
-    p0 = rng.normal(size=(n, 3)) * 2.0 + np.array([0.0, 0.0, -3.0])
-    yaw0 = rng.uniform(-np.pi, np.pi, n)
-    p_hat0 = tuple(tuple(float(x) for x in 0.7 * row) for row in p0)
-    cfgs = [
-        build_config(
-            agent_id=i,
-            n_agents=n,
-            edges=edges,
-            mode="active",
-            p_hat0_ned=p_hat0,
-            yaw_hat0_rad=tuple(float(y) for y in yaw0),
-        )
-        for i in range(n)
-    ]
-    inputs: list[tuple[float, OwnMeasurements, list[Payload]]] = []
-    base = runner_mod.AgentCore
-
-    class Recorded(base):  # type: ignore[misc, valid-type]
-        def step(self, t_s, own, inbox=()):  # type: ignore[no-untyped-def]
-            if self.id == 0:
-                inputs.append((t_s, own, list(inbox)))
-            return super().step(t_s, own, inbox)
-
-    runner_mod.AgentCore = Recorded
-    try:
-        run(cfgs, p0, yaw0, RunnerConfig(duration_s=1.5, seed=0))
-    finally:
-        runner_mod.AgentCore = base
-    return cfgs[0], inputs
+def _flown_inputs() -> tuple[AgentConfig, list[tuple[float, OwnMeasurements, list[Payload]]]]:
+    """Agent 0's core inputs in 1.5 s of paper 000's active scale estimation (headless)."""
+    cfgs = agent_configs("scale-active")
+    return cfgs[0], record(cfgs, P0_NED, YAW0_RAD, RunnerConfig(duration_s=1.5, seed=0))
 
 
 def test_a_tape_replays_to_the_flights_outputs(tmp_path):
