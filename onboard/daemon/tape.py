@@ -12,6 +12,7 @@ Format: a stream of frames, each a 4-byte big-endian length and a MessagePack do
 first is the header ``{"version": 1, "agent_id": I, "config": AgentConfig}``; then one
 ``[t_s, OwnMeasurements, [payload, ...]]`` per core step, the payloads in the wire encoding
 (:func:`messages.codec.encode`). A tape cut short by a crash reads up to its last whole frame.
+About 9 MB per minute per daemon at the default rates (3 vehicles, SITL).
 """
 
 from __future__ import annotations
