@@ -16,8 +16,7 @@ tape and reports each pair's distance-estimate error after the mission start, fo
   what is left when the odometry's velocity is exact.
 
 each with the tape's configuration and with every ``--set NAME=VALUE[,NAME=VALUE]`` of the
-agent core's ``ScaleGains`` (onboard/core/config.py; default: ``alpha=1`` and
-``sfm_alpha_settled=1``). The truth is
+agent core's ``ScaleGains`` (onboard/core/config.py; default: ``alpha=1``). The truth is
 used here only to take errors out of the inputs, never by an estimator in flight. Open loop: the
 replayed estimates do not fly the vehicles, so the motion is the flight's.
 
@@ -174,7 +173,7 @@ def main() -> None:
     ap.add_argument("out", type=Path, help="the benchmark's --out directory (with tapes/)")
     ap.add_argument("--set", action="append", default=None, dest="changes",
                     help="ScaleGains NAME=VALUE[,...] to replay with besides the tape's; "
-                    "repeatable (default: alpha=1.0 and sfm_alpha_settled=1.0)")  # fmt: skip
+                    "repeatable (default: alpha=1.0)")  # fmt: skip
     ap.add_argument("--slow", type=float, nargs="*", default=[5.0],
                     help="time constants of the slow-error variants (s)")  # fmt: skip
     args = ap.parse_args()
@@ -212,7 +211,7 @@ def main() -> None:
 
             variants[f"error low-passed over {tau_s:g} s removed"] = remove_slow
     variants["true velocity"] = true_velocity
-    changes = ["", *(args.changes or ["alpha=1.0", "sfm_alpha_settled=1.0"])]
+    changes = ["", *(args.changes or ["alpha=1.0"])]
     print(f"\n{npz.parent.name}: every pair's distance error, 30 s after the mission start "
           "to its end (median / p90 / max of |error|)")  # fmt: skip
     print("| odometry | configuration | 30-60 s | 60-90 s |\n|---|---|---|---|")

@@ -98,13 +98,11 @@ def _check(configs: Sequence[AgentConfig], runner: RunnerConfig) -> None:
                 f"{c.gradloc.localization!r}; use engine 'cores'"
             )
         s = c.scale
-        safeguards = (s.sfm_bias_speed_m_s, s.sfm_folds_forget_s, s.sfm_wander_max, s.sfm_bias_gain,
-                      s.sfm_alpha_settled)  # fmt: skip
+        safeguards = (s.sfm_bias_speed_m_s, s.sfm_folds_forget_s, s.sfm_wander_max, s.sfm_bias_gain)
         if any(x != 0.0 for x in safeguards):
             raise ValueError(
                 "the compiled engine runs paper 000's SfM observer: set sfm_bias_speed_m_s, "
-                "sfm_folds_forget_s, sfm_wander_max, sfm_bias_gain and sfm_alpha_settled to 0 "
-                "(sim.scenarios.PAPER_SFM) or use "
+                "sfm_folds_forget_s, sfm_wander_max and sfm_bias_gain to 0 (sim.scenarios.PAPER_SFM) or use "
                 "engine 'cores'"
             )
         if replace_fields(c, agent_id=0) != team:

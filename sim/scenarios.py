@@ -105,7 +105,6 @@ PAPER_SFM: dict[str, object] = {
     "sfm_folds_forget_s": 0.0,
     "sfm_wander_max": 0.0,
     "sfm_bias_gain": 0.0,
-    "sfm_alpha_settled": 0.0,
 }
 """The flight stack's SfM safeguards against biased odometry (:class:`onboard.core.config.AgentConfig`)
 turned off: the runner's odometry is exact unless asked, and the reproduction is the paper's."""

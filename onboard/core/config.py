@@ -101,10 +101,6 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
     observer). Not in the paper; an experiment (issue 22, docs/sim.md)."""
     sfm_bias_max_m_s: float = 0.1
     """Largest relative velocity bias an SfM observer may estimate."""
-    sfm_alpha_settled: float = 0.0
-    """Observer gain ``alpha`` of an SfM edge once its e-foldings reach
-    :attr:`converged_e_folds` (:func:`~onboard.estimation.sfm_observer.settled_alpha`; 0:
-    ``alpha`` throughout, paper 000). Not in the paper (issue 22)."""
     sfm_team_scale: bool = False
     """Report and use every reciprocal pair's distance on ONE team scale: the SfM distances
     fused through the shape the bearings fix (:mod:`onboard.estimation.team_scale`,
@@ -149,7 +145,6 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
             "sfm_wander_max",
             "sfm_bias_gain",
             "sfm_bias_max_m_s",
-            "sfm_alpha_settled",
         ):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")

@@ -163,8 +163,6 @@ class Scale:
                 folds_cap=0.9 * gains.converged_e_folds,
                 bias_gain=gains.sfm_bias_gain,
                 bias_max_m_s=gains.sfm_bias_max_m_s,
-                alpha_settled=gains.sfm_alpha_settled,
-                settle_folds=gains.converged_e_folds,
             )
         # time alignment of the SfM observers: peer ``(u_x, u_y, u_z, w, yaw)`` histories, the
         # observer's own clock, frames to replay

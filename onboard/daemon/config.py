@@ -77,9 +77,6 @@
                                       # bias with this gain, 1/s^2 (0: off; an experiment,
                                       # docs/equations.md)
     bias_max_m_s = 0.1                # ... at most this large
-    alpha_settled = 0.0               # observer gain alpha once an edge has converged (its
-                                      # e-foldings at converged_e_folds; 0: alpha throughout,
-                                      # paper 000; an experiment, docs/sim.md)
     team_scale = false                # every pair's distance on one team scale: the SfM
                                       # distances fused through the bearings' shape (an
                                       # experiment, docs/equations.md "Fused team scale")
@@ -203,7 +200,6 @@ class SfmSection(msgspec.Struct, forbid_unknown_fields=True):
     folds_forget_s: float = 0.0
     bias_gain: float = 0.0
     bias_max_m_s: float = 0.1
-    alpha_settled: float = 0.0
     team_scale: bool = False
 
 

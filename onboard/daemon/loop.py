@@ -154,7 +154,6 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
         sfm_folds_forget_s=c.sfm.folds_forget_s,
         sfm_bias_gain=c.sfm.bias_gain,
         sfm_bias_max_m_s=c.sfm.bias_max_m_s,
-        sfm_alpha_settled=c.sfm.alpha_settled,
         sfm_team_scale=c.sfm.team_scale,
     )
     safety = Safety(

@@ -206,22 +206,6 @@ def bias_update(delta_hat: Vec3, d_delta: Vec3, dt: float, bias_max_m_s: float) 
     return (x, y, z)
 
 
-def settled_alpha(alpha: float, alpha_settled: float, e_folds: float, settle_folds: float) -> float:
-    """The observer gain of one step: ``alpha`` until the edge's error has decayed by
-    ``settle_folds`` e-foldings, ``alpha_settled`` after (not in the paper; 0: ``alpha``).
-
-    With the SVD-shaped gain the error pair is ``s^2 + 2 sqrt(alpha lambda) s + alpha
-    lambda`` (module docstring): a large ``alpha`` removes the initial error fast, but also
-    passes the odometry's velocity errors into ``chihat`` with a bandwidth ``sqrt(alpha
-    lambda)``. On real firmware (issue 22, docs/sim.md) those errors wander by 5-13 cm/s over
-    seconds; once the estimate has converged a smaller ``alpha`` averages them over a longer
-    time. An edge whose e-foldings fall back (a wandering estimate, :attr:`SfmEdge.folds_cap`)
-    runs ``alpha`` again."""
-    if alpha_settled > 0.0 and e_folds >= settle_folds:
-        return alpha_settled
-    return alpha
-
-
 def e_fold_increment(dt: float, gate: float, alpha: float, lam: float) -> float:
     """``dt sqrt(g alpha lambda)``: the e-foldings one step gives the critically damped error
     pair of the SVD-shaped observer (:attr:`SfmEdge.e_folds`)."""
@@ -344,12 +328,6 @@ class SfmEdge:
     estimated, paper 000's observer). Not in the paper."""
     bias_max_m_s: float = 0.1
     """Largest bias estimate (:func:`bias_update`)."""
-    alpha_settled: float = 0.0
-    """Gain ``alpha`` once the edge has converged (:attr:`e_folds` at least
-    :attr:`settle_folds`; 0: ``alpha`` throughout, paper 000). Not in the paper: the initial
-    error is gone by then, and what the correction still does is follow the odometry's errors
-    (:func:`settled_alpha`)."""
-    settle_folds: float = math.inf
     delta_hat: Vec3 = (0.0, 0.0, 0.0)
     """Estimate of the relative velocity odometry error ``delta = u_true - u_ij`` (m/s, ``i``'s
     body frame); the observer runs on ``u_ij + deltahat``."""
@@ -401,12 +379,11 @@ class SfmEdge:
         self.gate = gate = excitation_gate(self.excitation, self.bias_speed_m_s)
         if self.bias_gain > 0.0:
             d_delta = bias_rate(beta_hat, beta, u_ij, self.chi_hat, gate, self.bias_gain)
-        alpha = settled_alpha(self.alpha, self.alpha_settled, self.e_folds, self.settle_folds)
         beta_hat_new, chi_new, beta_new, xi_sq, d_chi, chi_rate = observer_step(
             beta_hat, self.chi_hat, beta, u_ij, w_i, dt,
-            alpha, self.h_other, self.h_floor, gate,
+            self.alpha, self.h_other, self.h_floor, gate,
         )  # fmt: skip
-        self.e_folds += e_fold_increment(dt, gate, alpha, self.excitation)
+        self.e_folds += e_fold_increment(dt, gate, self.alpha, self.excitation)
         if self.folds_forget_s > 0.0:
             self.e_folds *= math.exp(-dt / self.folds_forget_s)
         if self.wander_window is not None and self.chi_hat > 0.0:

@@ -136,13 +136,12 @@ PAPER_DEFAULTS = {
 ADDED_DEFAULTS = {"localization": "paper000", "gradloc_range_weight": 1.0,
                   "gradloc_measured_range_weight": 1.0, "gradloc_yaw_from_bearings": False,
                   "sfm_bias_gain": 0.0, "sfm_bias_max_m_s": 0.1, "sfm_team_scale": False,
-                  "sfm_alpha_settled": 0.0,
                   "change_ramp_s": 3.0, "distance_weight": 0.25,
                   "distance_delta_m": 2.0}  # fmt: skip
 """Fields added since, each off by default (issue 25: paper 002's localization and its yaw-only
 rotation estimate from reciprocal bearings, and the in-flight formation switch and distance
 term, which act only on a formation change; issue 22: the SfM relative-velocity-bias
-estimate and the settled observer gain)."""
+estimate)."""
 
 
 def test_the_groups_keep_every_name_and_default_of_the_flat_config() -> None:

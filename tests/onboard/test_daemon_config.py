@@ -74,7 +74,6 @@ def test_defaults_and_urls(tmp_path):
         ('formation = "formation.toml"\n[sfm]\nbias_speed_m_s = -0.1\n', "sfm.bias_speed_m_s"),
         ('formation = "formation.toml"\n[sfm]\nwander_window_s = 0.0\n', "sfm.wander_window_s"),
         ('formation = "formation.toml"\n[sfm]\nwander_max = nan\n', "sfm.wander_max"),
-        ('formation = "formation.toml"\n[sfm]\nalpha_settled = -1.0\n', "sfm.alpha_settled"),
         ('formation = "formation.toml"\n[mavlink]\nsystem_id_base = 254\n', "254..256"),
     ],
 )
