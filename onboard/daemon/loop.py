@@ -74,7 +74,7 @@ from onboard.daemon.peer_clock import PeerClockCheck
 from onboard.daemon.peers import DropCounter, PeerLink
 from onboard.daemon.presence import PeerPresence
 from onboard.daemon.replay import SeqWindow
-from onboard.daemon.tape import TapeWriter, tape_path
+from onboard.daemon.tape import open_tape, tape_path
 from onboard.geometry import bearings_body
 from onboard.graph import complete_graph, formation_edges
 from onboard.rigidity.bearing import ibr_r3s1
@@ -255,8 +255,7 @@ class AgentDaemon:
         self.url = mavlink_url
         self.on_status = on_status
         self.core = AgentCore(agent_config(fleet, agent_id))
-        tape = tape_path(agent_id)
-        self.tape = TapeWriter(tape, self.core.config) if tape else None
+        self.tape = open_tape(tape_path(agent_id), self.core.config)
         """The core's flight recorder (:mod:`onboard.daemon.tape`; None: off)."""
         self.state = DaemonState()
         self.stop_event = threading.Event()

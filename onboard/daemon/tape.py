@@ -17,6 +17,7 @@ About 9 MB per minute per daemon at the default rates (3 vehicles, SITL).
 
 from __future__ import annotations
 
+import logging
 import os
 import struct
 import threading
@@ -30,6 +31,8 @@ from messages.agent import OwnMeasurements, Setpoint
 from messages.codec import Payload, decode, encode
 from messages.peer import PeerPayload
 from onboard.core.config import AgentConfig
+
+log = logging.getLogger(__name__)
 
 TAPE_ENV = "BEARINGFLOCK_CORE_TAPE"
 """Directory for the daemons' tapes (one ``agent<I>.tape`` each; empty or unset: none)."""
@@ -54,7 +57,8 @@ def tape_path(agent_id: int) -> Path | None:
 
 
 class TapeWriter:
-    """Appends core steps to a tape. Thread-safe; :meth:`close` flushes."""
+    """Appends core steps to a tape. Thread-safe; :meth:`close` flushes. A write that fails (a
+    full disk) stops the recording with one logged error, never the daemon: :attr:`failed`."""
 
     def __init__(self, path: str | Path, config: AgentConfig) -> None:
         self.path = Path(path)
@@ -62,21 +66,43 @@ class TapeWriter:
         self._file: BinaryIO = self.path.open("wb")
         self._enc = msgspec.msgpack.Encoder()
         self._lock = threading.Lock()
+        self.failed = False
         self._write(TapeHeader(TAPE_VERSION, config.graph.agent_id, config))
 
     def _write(self, doc: Any) -> None:
+        if self.failed:
+            return
         data = self._enc.encode(doc)
         with self._lock:
-            self._file.write(_LEN.pack(len(data)))
-            self._file.write(data)
+            try:
+                self._file.write(_LEN.pack(len(data)) + data)
+            except (OSError, ValueError) as exc:  # ValueError: written after close
+                self.failed = True
+                log.error("core tape %s: recording stopped (%s)", self.path, exc)
 
     def step(self, t_s: float, own: OwnMeasurements, inbox: Iterable[Payload]) -> None:
         """Record one core step's inputs."""
-        self._write((t_s, own, [encode(p) for p in inbox]))
+        if not self.failed:
+            self._write((t_s, own, [encode(p) for p in inbox]))
 
     def close(self) -> None:
         with self._lock:
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError as exc:
+                log.error("core tape %s: %s", self.path, exc)
+
+
+def open_tape(path: Path | None, config: AgentConfig) -> TapeWriter | None:
+    """The daemon's tape at ``path`` (None: none); one that cannot be opened is logged and the
+    daemon flies without it."""
+    if path is None:
+        return None
+    try:
+        return TapeWriter(path, config)
+    except OSError as exc:
+        log.error("core tape %s cannot be written (%s): flying without it", path, exc)
+        return None
 
 
 def _frames(f: BinaryIO) -> Iterator[bytes]:

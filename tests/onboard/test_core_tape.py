@@ -9,7 +9,7 @@ from messages.agent import OwnMeasurements
 from messages.codec import Payload, encode
 from onboard.core.agent import AgentCore
 from onboard.core.config import AgentConfig
-from onboard.daemon.tape import TapeError, TapeWriter, read_tape, replay, tape_path
+from onboard.daemon.tape import TapeError, TapeWriter, open_tape, read_tape, replay, tape_path
 from sim.runner import RunnerConfig
 from sim.scenarios import P0_NED, YAW0_RAD, agent_configs
 
@@ -87,3 +87,25 @@ def test_tapes_are_off_unless_asked(monkeypatch, tmp_path):
     assert tape_path(2) is None
     monkeypatch.setenv("BEARINGFLOCK_CORE_TAPE", str(tmp_path))
     assert tape_path(2) == tmp_path / "agent2.tape"
+
+
+def test_a_failing_tape_stops_recording_never_the_daemon(tmp_path, caplog):
+    config, inputs = _flown_inputs()
+    tape = TapeWriter(tmp_path / "agent0.tape", config)
+    tape.step(*inputs[0])
+    tape._file.close()  # as a full disk would: every write fails from here
+    tape.step(*inputs[1])
+    tape.step(*inputs[2])
+    assert tape.failed
+    assert sum("recording stopped" in r.message for r in caplog.records) == 1
+    _, steps = read_tape(tmp_path / "agent0.tape")
+    assert sum(1 for _ in steps) == 1  # what was written before the failure reads back
+
+
+def test_a_tape_that_cannot_be_opened_is_logged_and_skipped(tmp_path, caplog):
+    config, _ = _flown_inputs()
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert open_tape(blocker / "agent0.tape", config) is None
+    assert "flying without it" in caplog.text
+    assert open_tape(None, config) is None
