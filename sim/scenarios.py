@@ -110,11 +110,6 @@ PAPER_SFM: dict[str, object] = {
 turned off: the runner's odometry is exact unless asked, and the reproduction is the paper's."""
 
 
-REPRODUCTION_CONSENSUS: dict[str, object] = {"consensus_gamma": 50.0}
-"""The PI consensus's input rate the paper-000 reproductions were measured with (README); the
-flight stack's is 5 since issue 22 (:attr:`onboard.core.config.ScaleGains.consensus_gamma`)."""
-
-
 CASE4_GAINS: dict[str, object] = {
     "w_l_start_rad_s": 0.5,
     "w_l_max_rad_s": 0.6,
@@ -163,7 +158,6 @@ def agent_configs(name: str, seed: int = 0, **overrides: object) -> list[AgentCo
         extra.update(CASE4_GAINS)
     # paper 000's observer: exact odometry, no gate, no forgetting, no wander watch
     extra.update(PAPER_SFM)
-    extra.update(REPRODUCTION_CONSENSUS)
     extra.update(overrides)
     return [
         build_config(

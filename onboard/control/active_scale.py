@@ -28,10 +28,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 
-import numpy as np
-
-from onboard.geometry import FloatArray
-
 Vec3 = tuple[float, float, float]
 
 P_NORM = -5.0
@@ -141,23 +137,6 @@ def rotation_velocity_body(p_i_ned: Vec3, yaw_i_rad: float, p_bar_ned: Vec3) -> 
     c, s = math.cos(yaw_i_rad), math.sin(yaw_i_rad)
     # S (a, b, z) = (-b, a, 0); then R^T
     return (c * -b + s * a, -s * -b + c * a, 0.0)
-
-
-def formation_radius_m(p_ned: FloatArray) -> float:
-    """The largest horizontal distance of the points ``p_ned`` ``(N, 3)`` from their centroid
-    (m): the rim of a rotation about the barycenter (eq. 13)."""
-    p = np.asarray(p_ned, dtype=float).reshape(-1, 3)[:, :2]
-    if not len(p):
-        return 0.0
-    return float(np.max(np.linalg.norm(p - p.mean(axis=0), axis=1)))
-
-
-def rotation_rate_bound(w_l_max_rad_s: float, rim_speed_m_s: float, radius_m: float) -> float:
-    """The bound of ``|w_l|``: ``w_l_max_rad_s``, and ``rim_speed_m_s / radius_m`` when both are
-    positive (the farthest vehicle then turns at most ``rim_speed_m_s``)."""
-    if rim_speed_m_s > 0.0 and radius_m > 0.0:
-        return min(w_l_max_rad_s, rim_speed_m_s / radius_m)
-    return w_l_max_rad_s
 
 
 def convergence_gain(e_index: float, e_low: float = E_LOW, e_high: float = E_HIGH) -> float:

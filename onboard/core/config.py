@@ -117,14 +117,7 @@ sfm_observer.excitation_gate`): they correct their inverse depth only where the 
     # eigenvalue, 6-8 in the demo graphs). ``k_p = 20`` failed at 60 ms; ``k_p = k_i = 1`` holds
     # past 200 ms with 10% loss, at the price of a slower case 4 (6.5 s -> 7-9 s to converge;
     # the case 4 scenario runs k_p = k_i = 3, sim.scenarios.CASE4_GAINS, README).
-    consensus_gamma: float = 5.0
-    """Rate of the PI estimator's input term (``gamma`` of onboard/estimation/consensus.py). With
-    couplings this weak an estimate follows its own input at the frequencies a rotating team
-    feeds it (``|x_i - mean| / |phi_i - mean| = gamma w / |k_i^2 mu^2 - w^2 + j (gamma + k_p mu)
-    w|``: 0.8 at ``gamma = 50``, ``w = 0.3`` rad/s, ``mu = 3``): each agent's barycenter
-    ``pbar`` (eq. 14) sat near itself, every vehicle turned about its own centre and the
-    formation grew (docs/sim.md, "Formation growth under the active rotation"). At 5: 0.16.
-    The network mean still follows its inputs within 0.2 s. Not in the paper."""
+    consensus_gamma: float = 50.0
     consensus_k_p: float = 1.0
     consensus_k_i: float = 1.0
     excitation_relay_every: int = 5
@@ -178,16 +171,6 @@ class ActiveGains(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """The damping of eq. 15 pulls ``w_l`` towards ``k_E(E)`` times this instead of 0
     (:func:`onboard.control.active_scale.rotation_rate_derivative`): the active rotation starts
     while the formation converges. 0: paper 000's eq. 15. Not in the paper."""
-    w_l_rim_speed_m_s: float = 0.0
-    """With :attr:`formation_radius_m`, the rotation rate is bounded by this over that radius
-    too (0: only :attr:`w_l_max_rad_s`): the vehicle farthest from the barycenter turns at most
-    this fast. A rotation its vehicles cannot fly within the speed limit is saturated unevenly,
-    no longer rigid: the distances change under it, the SfM wander watch un-converges the edges
-    and the rotation goes on (docs/sim.md, "Formation growth under the active rotation"). Not
-    in the paper."""
-    formation_radius_m: float = 0.0
-    """The planned formation's largest horizontal distance from its centroid, metres (0:
-    unknown); a formation change (:meth:`onboard.core.motion.Formation.adopt`) replaces it."""
     # random-motion baseline
     random_tau_s: float = 1.0
 

@@ -352,21 +352,6 @@ class FormationActive(Formation):
                  bearings: Bearings, scale: Scale) -> None:  # fmt: skip
         super().__init__(graph, formation, bearings, scale)
         self.active = active
-        self.radius_m = active.formation_radius_m
-        """The planned formation's rim (:attr:`onboard.core.config.ActiveGains.formation_radius_m`;
-        :meth:`adopt` replaces it)."""
-
-    def adopt(self, p_ned: FloatArray, yaw_rad: FloatArray, leader: int | None,
-              distances: bool = False, ramp_s: float | None = None) -> None:  # fmt: skip
-        """:meth:`Formation.adopt`, and the new formation's rim bounds the rotation rate."""
-        super().adopt(p_ned, yaw_rad, leader, distances, ramp_s)
-        self.radius_m = act.formation_radius_m(p_ned)
-
-    @property
-    def w_l_bound_rad_s(self) -> float:
-        """The bound of ``|w_l|`` (:func:`onboard.control.active_scale.rotation_rate_bound`)."""
-        g = self.active
-        return act.rotation_rate_bound(g.w_l_max_rad_s, g.w_l_rim_speed_m_s, self.radius_m)
 
     def step(self, own: Own, outbox: list[Payload]) -> Command | None:
         if self.leader is not None:
@@ -391,8 +376,7 @@ class FormationActive(Formation):
         dw += g.k_w_l_coupling * sum(w - self.w_l for w in shared)
         # anti-windup: the vehicle cannot turn the formation faster than this, so integrating
         # past it only stores error (with delayed lambdabar it ran away to 1e35 otherwise)
-        bound = self.w_l_bound_rad_s
-        self.w_l = max(-bound, min(bound, self.w_l + dt * dw))
+        self.w_l = max(-g.w_l_max_rad_s, min(g.w_l_max_rad_s, self.w_l + dt * dw))
         sc.share("w_l", [self.w_l], [])
         loc = sc.pose
         n3 = act.rotation_velocity_body(loc.p_hat_ned, loc.yaw_hat_rad, sc.p_bar)

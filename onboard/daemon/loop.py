@@ -44,11 +44,9 @@ from messages.limits import (
 from messages.vocabulary import Alarm, DropReason, DropScope, Phase, drop_key
 from onboard.autopilot.base import AutopilotLink, LinkError, Telemetry, signing_rejections
 from onboard.autopilot.states import HOLD_MODE
-from onboard.control.active_scale import formation_radius_m
 from onboard.control.leader import LeaderPlan
 from onboard.core.agent import AgentCore
 from onboard.core.config import (
-    ActiveGains,
     AgentConfig,
     FormationGains,
     GradientLocalizationGains,
@@ -106,13 +104,6 @@ STEP_ERROR_ALARM_S = 1.0
 """After an exception escaped a core tick the vehicle holds with alarm ``step_error`` this long."""
 
 
-ROTATION_SPEED_SHARE = 0.5
-"""The share of the speed limit the active rotation (paper 000 eq. 13) may give the planned
-formation's farthest vehicle (:attr:`onboard.core.config.ActiveGains.w_l_rim_speed_m_s`): the
-rest is left to the formation law and the rigidity layer, and to a formation that flies larger
-than planned (bearings do not fix its scale)."""
-
-
 def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
     """The core's configuration from the fleet file: graph, planned formation, scaled prior.
 
@@ -168,11 +159,7 @@ def agent_config(fleet: Fleet, agent_id: int) -> AgentConfig:
     safety = Safety(
         v_max_m_s=c.limits.max_speed_m_s, yaw_rate_max_rad_s=c.limits.max_yaw_rate_rad_s
     )
-    active = ActiveGains(
-        w_l_rim_speed_m_s=ROTATION_SPEED_SHARE * c.limits.max_speed_m_s,
-        formation_radius_m=formation_radius_m(f.p_ned),
-    )
-    return AgentConfig(graph=graph, mode=c.mode, safety=safety, scale=scale, active=active,
+    return AgentConfig(graph=graph, mode=c.mode, safety=safety, scale=scale,
                        formation=formation, rigidity=rigidity,
                        gradloc=GradientLocalizationGains(
                            localization=c.core.localization,

@@ -9,10 +9,8 @@ import pytest
 from onboard.control.active_scale import (
     active_velocity_rate,
     convergence_gain,
-    formation_radius_m,
     lambda_bar,
     lambda_bar_gradient,
-    rotation_rate_bound,
     rotation_rate_derivative,
     rotation_velocity_body,
     soft_min_weight,
@@ -158,17 +156,3 @@ def test_the_start_bias_makes_zero_unstable_and_fades_with_the_gate():
     for k_e in (0.0, 0.3, 0.5):
         paper = rotation_rate_derivative(0.2, 1.5, 0.1, k_e, **kw)
         assert rotation_rate_derivative(0.2, 1.5, 0.1, k_e, w_l_start=0.4, **kw) == paper
-
-
-def test_formation_radius_is_the_farthest_horizontal_distance_from_the_centroid():
-    p = np.array([[0.0, 0.0, -5.0], [4.0, 0.0, -9.0], [2.0, 6.0, -5.0]])  # centroid (2, 2)
-    assert formation_radius_m(p) == pytest.approx(4.0)  # (2, 6): altitude does not count
-    assert formation_radius_m(p + np.array([10.0, -3.0, 1.0])) == pytest.approx(4.0)
-    assert formation_radius_m(np.zeros((0, 3))) == 0.0
-
-
-def test_the_rim_speed_bounds_the_rotation_rate():
-    assert rotation_rate_bound(0.3, 1.0, 5.0) == pytest.approx(0.2)  # the rim at 1 m/s
-    assert rotation_rate_bound(0.3, 1.0, 2.0) == 0.3  # a small formation: w_l_max
-    assert rotation_rate_bound(0.3, 0.0, 5.0) == 0.3  # no rim speed: paper 000's bound
-    assert rotation_rate_bound(0.3, 1.0, 0.0) == 0.3  # unknown radius

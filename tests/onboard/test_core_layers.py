@@ -137,17 +137,11 @@ ADDED_DEFAULTS = {"localization": "paper000", "gradloc_range_weight": 1.0,
                   "gradloc_measured_range_weight": 1.0, "gradloc_yaw_from_bearings": False,
                   "sfm_bias_gain": 0.0, "sfm_bias_max_m_s": 0.1, "sfm_team_scale": False,
                   "change_ramp_s": 3.0, "distance_weight": 0.25,
-                  "distance_delta_m": 2.0, "w_l_rim_speed_m_s": 0.0,
-                  "formation_radius_m": 0.0}  # fmt: skip
+                  "distance_delta_m": 2.0}  # fmt: skip
 """Fields added since, each off by default (issue 25: paper 002's localization and its yaw-only
 rotation estimate from reciprocal bearings, and the in-flight formation switch and distance
 term, which act only on a formation change; issue 22: the SfM relative-velocity-bias
 estimate)."""
-
-
-CHANGED_DEFAULTS = {"consensus_gamma": 5.0}
-"""Defaults changed since, on purpose (issue 22: with ``gamma = 50`` each agent's barycenter
-estimate sat near itself while the team rotated, and the formation grew)."""
 
 
 def test_the_groups_keep_every_name_and_default_of_the_flat_config() -> None:
@@ -156,7 +150,7 @@ def test_the_groups_keep_every_name_and_default_of_the_flat_config() -> None:
     structural = {"agent_id", "n_agents", "edges", "p_hat0_ned", "yaw_hat0_rad",
                   "desired_beta_body", "desired_yaw_rad", "rigidity_edges"}  # fmt: skip
     assert set(got) == set(PAPER_DEFAULTS) | set(ADDED_DEFAULTS) | structural
-    assert {k: got[k] for k in PAPER_DEFAULTS} == PAPER_DEFAULTS | CHANGED_DEFAULTS
+    assert {k: got[k] for k in PAPER_DEFAULTS} == PAPER_DEFAULTS
     assert {k: got[k] for k in ADDED_DEFAULTS} == ADDED_DEFAULTS
     assert cfg.mode == "active"
 

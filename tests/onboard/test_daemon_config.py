@@ -45,9 +45,6 @@ def test_defaults_and_urls(tmp_path):
     plan0 = (0.0, 0.0, -5.0)
     expected = tuple(c + 0.6 * (p - c) for p, c in zip(plan0, centroid, strict=True))
     assert cfg.graph.p_hat0_ned[0] == pytest.approx(expected, abs=1e-12)
-    # the active rotation's rim: half the speed limit at the planned formation's farthest vehicle
-    assert cfg.active.w_l_rim_speed_m_s == pytest.approx(0.5 * fleet.config.limits.max_speed_m_s)
-    assert cfg.active.formation_radius_m == pytest.approx(5.0**0.5)  # (0, 0) and (4, 0) of (2, 1)
 
 
 @pytest.mark.parametrize(

@@ -87,33 +87,3 @@ def test_a_leader_holds_and_the_others_follow(mode):
 
 def test_a_mode_without_a_formation_refuses_it():
     assert not _core("active").adopt_formation(P_NEW, YAW)
-
-
-def test_the_rotation_rate_is_bounded_by_the_rim_speed_and_a_new_formation_rebounds_it():
-    """The active rotation of a formation whose farthest vehicle would exceed the rim speed turns
-    slower (ActiveGains.w_l_rim_speed_m_s over formation_radius_m), and a formation change
-    replaces the radius with the new formation's."""
-    beta, _ = bearings_body(P_OLD, YAW, TRIANGLE)
-    desired = tuple(
-        (i, j, tuple(float(x) for x in b)) for (i, j), b in zip(TRIANGLE, beta, strict=True)
-    )
-    radius = float(np.max(np.linalg.norm(P_OLD[:, :2] - P_OLD[:, :2].mean(0), axis=1)))
-    fields = dict(
-        agent_id=0, n_agents=3, edges=TRIANGLE, mode="formation-active",
-        p_hat0_ned=tuple(tuple(float(x) for x in r) for r in P_OLD),
-        yaw_hat0_rad=tuple(float(y) for y in YAW), desired_beta_body=desired,
-        desired_yaw_rad=tuple(float(y) for y in YAW), w_l_start_rad_s=0.3,
-        e_low=-2.0, e_high=-1.0,  # the gate k_E(E) of eq. 16 held open: the rotation runs
-    )  # fmt: skip
-    free = AgentCore(build_config(**fields))
-    bounded = AgentCore(build_config(**fields, w_l_rim_speed_m_s=0.5, formation_radius_m=radius))
-    for core in (free, bounded):
-        core.controller.w_l = 0.01  # the first push (w_l = 0 is an unstable equilibrium)
-    for k in range(1000):  # 5 s: the start bias drives w_l towards w_l_start (0.3)
-        own = _own(0.005 * k, P_OLD, 0)
-        free.step(own.t_s, own)
-        bounded.step(own.t_s, own)
-    assert abs(free.w_l) > 0.27  # past the rim's bound
-    assert abs(bounded.w_l) == pytest.approx(0.5 / radius)  # 0.217 rad/s for a 2.31 m rim
-    assert bounded.adopt_formation(2.0 * P_OLD, YAW)  # twice as large: half the rate
-    assert bounded.controller.w_l_bound_rad_s == pytest.approx(0.25 / radius)
